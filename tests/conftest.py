@@ -1,0 +1,27 @@
+"""Shared fixtures: the team's real KITTI data (skipped cleanly when ../shared/data is absent)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+
+
+@pytest.fixture(scope="session")
+def kitti_sample_root() -> Path:
+    """Root of the 60-frame real KITTI sample (KITTI odometry layout, sequence '00')."""
+    root = SHARED_DATA / "kitti-sample"
+    if not (root / "sequences" / "00" / "velodyne").is_dir():
+        pytest.skip(f"real KITTI sample not found at {root}")
+    return root
+
+
+@pytest.fixture(scope="session")
+def kitti_gt_poses_dir() -> Path:
+    """Folder of the official KITTI ground-truth poses 00.txt..10.txt (camera frame) and calib 00-02."""
+    root = SHARED_DATA / "kitti-gt-poses"
+    if not (root / "poses" / "00.txt").is_file():
+        pytest.skip(f"KITTI ground-truth poses not found at {root}")
+    return root

@@ -1,0 +1,133 @@
+"""File formats shared by data, odometry and evaluation: KITTI poses, KITTI calib, TUM trajectories.
+
+Every writer goes through :func:`atomic_write_text` so an interrupted run never leaves a half-written file.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from vcr_odom.errors import DataError
+
+
+def atomic_write_text(path: str | os.PathLike[str], text: str) -> Path:
+    """Write ``text`` to a temporary file beside ``path``, then rename it into place."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp_name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w") as handle:
+            handle.write(text)
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(tmp_name, path)
+    except BaseException:
+        Path(tmp_name).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def read_kitti_poses(path: str | os.PathLike[str]) -> NDArray[np.float64]:
+    """Read a KITTI pose file (12 numbers a line, row-major 3x4) into ``(M, 4, 4)``."""
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(f"poses file not found: {path}")
+    rows = []
+    for line_number, line in enumerate(path.read_text().splitlines(), start=1):
+        if not line.strip():
+            continue
+        try:
+            values = [float(v) for v in line.split()]
+        except ValueError as error:
+            raise DataError(f"{path}:{line_number}: expected 12 numbers, got {line!r}") from error
+        if len(values) != 12:
+            raise DataError(f"{path}:{line_number}: expected 12 numbers (a 3x4 pose), got {len(values)}")
+        rows.append(values)
+    if not rows:
+        raise DataError(f"poses file is empty: {path}")
+    poses = np.tile(np.eye(4), (len(rows), 1, 1))
+    poses[:, :3, :4] = np.asarray(rows).reshape(-1, 3, 4)
+    if not np.all(np.isfinite(poses)):
+        raise DataError(f"{path}: poses contain NaN or inf")
+    return poses
+
+
+def format_kitti_poses(poses: ArrayLike) -> str:
+    """KITTI text for ``(M, 4, 4)`` poses: the top 3x4 block of each, row-major, one pose a line."""
+    poses = np.asarray(poses, dtype=np.float64)
+    return "".join(" ".join(f"{v:.9e}" for v in pose[:3, :4].ravel()) + "\n" for pose in poses)
+
+
+def write_kitti_poses(path: str | os.PathLike[str], poses: ArrayLike) -> Path:
+    return atomic_write_text(path, format_kitti_poses(poses))
+
+
+def read_kitti_calib(path: str | os.PathLike[str]) -> dict[str, NDArray[np.float64]]:
+    """Parse a KITTI ``calib.txt`` (``KEY: v1 v2 ...``); ``Tr`` comes back as a 4x4 matrix."""
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(f"calibration file not found: {path}")
+    calib: dict[str, NDArray[np.float64]] = {}
+    for line_number, line in enumerate(path.read_text().splitlines(), start=1):
+        if not line.strip():
+            continue
+        key, sep, rest = line.partition(":")
+        if not sep:
+            raise DataError(f"{path}:{line_number}: expected 'KEY: numbers', got {line!r}")
+        try:
+            calib[key.strip()] = np.array([float(v) for v in rest.split()])
+        except ValueError as error:
+            raise DataError(f"{path}:{line_number}: non-numeric value in {line!r}") from error
+    if "Tr" in calib:
+        if calib["Tr"].size != 12:
+            raise DataError(f"{path}: 'Tr' must have 12 numbers (3x4), got {calib['Tr'].size}")
+        tr = np.eye(4)
+        tr[:3, :4] = calib["Tr"].reshape(3, 4)
+        calib["Tr"] = tr
+    return calib
+
+
+def write_kitti_calib(path: str | os.PathLike[str], entries: dict[str, ArrayLike]) -> Path:
+    """Write ``KEY: numbers`` lines; a 4x4 ``Tr`` is written as its 3x4 block, as KITTI does."""
+    lines = []
+    for key, value in entries.items():
+        array = np.asarray(value, dtype=np.float64)
+        if array.shape == (4, 4):
+            array = array[:3, :4]
+        lines.append(f"{key}: " + " ".join(f"{v:.12e}" for v in array.ravel()))
+    return atomic_write_text(path, "\n".join(lines) + "\n")
+
+
+def read_times(path: str | os.PathLike[str]) -> NDArray[np.float64]:
+    """Read a KITTI ``times.txt`` (one timestamp in seconds a line)."""
+    path = Path(path)
+    try:
+        times = np.loadtxt(path, dtype=np.float64, ndmin=1)
+    except ValueError as error:
+        raise DataError(f"{path}: expected one number (seconds) per line") from error
+    return times
+
+
+def write_times(path: str | os.PathLike[str], times: ArrayLike) -> Path:
+    return atomic_write_text(path, "".join(f"{t:.6e}\n" for t in np.asarray(times, dtype=np.float64)))
+
+
+def format_tum_trajectory(poses: ArrayLike, timestamps: ArrayLike) -> str:
+    """TUM text (``t x y z qx qy qz qw``) through evo's own quaternion conversion."""
+    from evo.core.transformations import quaternion_from_matrix
+
+    lines = []
+    for pose, stamp in zip(np.asarray(poses, dtype=np.float64), np.asarray(timestamps), strict=True):
+        qw, qx, qy, qz = quaternion_from_matrix(pose)
+        x, y, z = pose[:3, 3]
+        lines.append(f"{stamp:.6f} {x:.9f} {y:.9f} {z:.9f} {qx:.9f} {qy:.9f} {qz:.9f} {qw:.9f}\n")
+    return "".join(lines)
+
+
+def write_tum_trajectory(path: str | os.PathLike[str], poses: ArrayLike, timestamps: ArrayLike) -> Path:
+    return atomic_write_text(path, format_tum_trajectory(poses, timestamps))

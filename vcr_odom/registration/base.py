@@ -1,0 +1,55 @@
+"""One small interface for every pairwise registration method (baselines and VCR-Net alike).
+
+``prepare`` holds the per-frame work (down-sampling, normals, features, a network's encoding) so the
+odometry loop does it once per frame and reuses it for both pairs the frame belongs to.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+
+from vcr_odom.data.base import Points
+from vcr_odom.geometry import Transform
+
+
+@dataclass
+class RegistrationResult:
+    """``transform`` is ``T_target_source``: it maps source points into the target frame."""
+
+    transform: Transform
+    fitness: float = float("nan")
+    inlier_rmse: float = float("nan")
+    info: dict[str, Any] = field(default_factory=dict)
+
+
+@runtime_checkable
+class Registrar(Protocol):
+    """A pairwise method. ``needs_initial_guess`` is False for global methods (FPFH+RANSAC, VCR-Net)."""
+
+    name: str
+    needs_initial_guess: bool
+
+    def prepare(self, points: Points) -> Any: ...
+
+    def register(self, source: Any, target: Any, initial_guess: Transform | None = None) -> RegistrationResult: ...
+
+
+def identity_guess(initial_guess: Transform | None) -> Transform:
+    return np.eye(4) if initial_guess is None else np.asarray(initial_guess, dtype=np.float64)
+
+
+@runtime_checkable
+class SequentialOdometry(Protocol):
+    """A method that keeps its own state across frames (kiss-icp's local map, for one).
+
+    ``step`` takes the raw frame and returns the pose of that frame in the frame-0 LiDAR frame.
+    """
+
+    name: str
+
+    def reset(self) -> None: ...
+
+    def step(self, points: Points, timestamp: float) -> Transform: ...
