@@ -1,0 +1,30 @@
+# Two commands set up a fresh machine (see README): `make demo` and `make test`.
+VENV ?= .venv
+PYTHON ?= python3
+BIN := $(VENV)/bin
+export PYTHON VENV
+
+.PHONY: setup demo test test-all lint format bench clean
+
+setup:
+	@bash scripts/setup.sh
+
+## Set up, generate a synthetic sequence and compare baselines on it (no dataset needed).
+demo: setup
+	$(BIN)/vcr-odom demo
+
+## Set up and run the fast test suite (what CI runs).
+test: setup
+	$(BIN)/python -m pytest -q -m "not slow"
+
+test-all: setup
+	$(BIN)/python -m pytest -q
+
+lint: setup
+	$(BIN)/ruff check . && $(BIN)/ruff format --check .
+
+format: setup
+	$(BIN)/ruff format . && $(BIN)/ruff check --fix .
+
+clean:
+	rm -rf $(VENV) .pytest_cache .ruff_cache *.egg-info

@@ -1,0 +1,39 @@
+"""``vcr-odom demo``: the whole job on a built-in synthetic sequence, no dataset needed."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from vcr_odom.cli.compare import compare_sequence
+from vcr_odom.cli.progress import console
+from vcr_odom.data import open_sequence
+from vcr_odom.data.synth import generate_sequence
+
+DEMO_METHODS = ["icp10", "icp", "kiss-icp"]
+
+
+@click.command("demo")
+@click.option(
+    "--frames",
+    type=click.IntRange(min=10),
+    default=100,
+    show_default=True,
+    help="Length of the synthetic sequence.",
+)
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the synthetic scene and drive.")
+@click.option(
+    "--results-dir",
+    type=click.Path(path_type=Path, file_okay=False),
+    default=Path("results"),
+    show_default=True,
+    help="Where the synthetic data and the result folder go.",
+)
+def demo(frames: int, seed: int, results_dir: Path) -> None:
+    """Generate a synthetic KITTI-layout sequence, run the baselines on it, print a table and write a plot."""
+    data_root = results_dir / "demo-data"
+    console.print(f"Generating {frames} synthetic frames (seed {seed}) in {data_root} ...")
+    generate_sequence(data_root, seq="00", frames=frames, seed=seed)
+    sequence = open_sequence(data_root=data_root, seq="00")
+    compare_sequence(sequence, DEMO_METHODS, None, 1, "constant-velocity", results_dir, data_root=data_root)

@@ -1,0 +1,25 @@
+"""The ``vcr-odom`` command: a thin click group; every command lives in its own module."""
+
+from __future__ import annotations
+
+import click
+
+from vcr_odom.cli.compare import compare
+from vcr_odom.cli.demo import demo
+from vcr_odom.cli.evaluate import evaluate
+from vcr_odom.cli.options import FriendlyGroup
+from vcr_odom.cli.run import run
+from vcr_odom.cli.synth import synth
+
+
+@click.group(cls=FriendlyGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(package_name="vcr-odom")
+def cli() -> None:
+    """LiDAR odometry with VCR-Net and classical baselines, scored honestly against ground truth."""
+
+
+for command in (run, evaluate, compare, synth, demo):
+    cli.add_command(command)
+
+if __name__ == "__main__":
+    cli()

@@ -1,0 +1,84 @@
+"""Options shared by several commands, and the error boundary between the library and the terminal."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any, TypeVar
+
+import click
+
+from vcr_odom.errors import VcrOdomError
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+class FriendlyGroup(click.Group):
+    """Turns the library's own errors into one clear line and exit code 1, instead of a traceback."""
+
+    def invoke(self, ctx: click.Context) -> Any:
+        try:
+            return super().invoke(ctx)
+        except VcrOdomError as error:
+            raise click.ClickException(str(error)) from error
+
+
+def sequence_options(function: F) -> F:
+    """Where the frames come from: a KITTI-layout root plus ``--seq``, or a plain ``--folder`` of scans."""
+    decorators = [
+        click.option(
+            "--data-root",
+            type=click.Path(path_type=Path),
+            envvar="VCR_ODOM_DATA_ROOT",
+            show_envvar=True,
+            help="KITTI odometry root holding sequences/XX/velodyne and poses/XX.txt.",
+        ),
+        click.option("--seq", default="00", show_default=True, help="Sequence id under --data-root."),
+        click.option(
+            "--folder",
+            type=click.Path(path_type=Path, exists=True, file_okay=False),
+            help="A plain folder of .bin/.pcd/.ply scans instead of --data-root/--seq.",
+        ),
+        click.option(
+            "--poses",
+            type=click.Path(path_type=Path, exists=True, dir_okay=False),
+            help="With --folder: ground-truth poses (KITTI format).",
+        ),
+        click.option(
+            "--calib",
+            type=click.Path(path_type=Path, exists=True, dir_okay=False),
+            help="With --folder: KITTI calib.txt whose Tr says the poses are in the camera frame.",
+        ),
+        click.option("--frames", default=None, metavar="A:B", help="Only frames A..B-1 (Python slice)."),
+        click.option(
+            "--stride",
+            type=click.IntRange(min=1),
+            default=1,
+            show_default=True,
+            help="Use every K-th frame (larger motion between frames).",
+        ),
+    ]
+    for decorator in reversed(decorators):
+        function = decorator(function)
+    return function
+
+
+def results_option(function: F) -> F:
+    return click.option(
+        "--results-dir",
+        type=click.Path(path_type=Path, file_okay=False),
+        default=Path("results"),
+        show_default=True,
+        help="Where timestamped result folders (and a 'latest' link) are written.",
+    )(function)
+
+
+def initial_guess_option(function: F) -> F:
+    return click.option(
+        "--init",
+        "initial_guess",
+        type=click.Choice(["constant-velocity", "identity"]),
+        default="constant-velocity",
+        show_default=True,
+        help="Initial guess of local (ICP) methods; global ones ignore it.",
+    )(function)

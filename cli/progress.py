@@ -1,0 +1,40 @@
+"""A rich progress bar for the frame loop."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+
+from rich.console import Console
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TextColumn,
+    TimeElapsedColumn,
+    TimeRemainingColumn,
+)
+
+console = Console()
+
+
+@contextmanager
+def frame_progress(description: str, total: int) -> Iterator[Callable[..., None]]:
+    """Yields a callback that advances the bar by one frame (its arguments are ignored)."""
+    columns = (
+        TextColumn("[bold]{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TextColumn("{task.fields[fps]}"),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+    )
+    with Progress(*columns, console=console, transient=False) as progress:
+        task = progress.add_task(description, total=total, fps="")
+
+        def advance(*_args: object) -> None:
+            progress.advance(task)
+            speed = progress.tasks[task].speed
+            progress.update(task, fps=f"{speed:5.1f} fps" if speed else "")
+
+        yield advance

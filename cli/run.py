@@ -1,0 +1,70 @@
+"""``vcr-odom run``: one method over one sequence, into a result folder."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from vcr_odom.cli.options import initial_guess_option, results_option, sequence_options
+from vcr_odom.cli.progress import console, frame_progress
+from vcr_odom.cli.tables import report_table
+from vcr_odom.data import open_sequence
+from vcr_odom.odometry import InitialGuess, select_frames
+from vcr_odom.pipeline import build_odometry, run_and_save
+from vcr_odom.registration import METHOD_NAMES, describe_methods
+from vcr_odom.results import create_result_folder, provenance, write_json
+
+DEFAULT_METHOD = "kiss-icp"
+
+
+@click.command("run", epilog=describe_methods())
+@sequence_options
+@click.option(
+    "--method",
+    type=click.Choice(METHOD_NAMES),
+    default=DEFAULT_METHOD,
+    show_default=True,
+    help="Registration method (see the list below).",
+)
+@initial_guess_option
+@results_option
+def run(
+    data_root: Path | None,
+    seq: str,
+    folder: Path | None,
+    poses: Path | None,
+    calib: Path | None,
+    frames: str | None,
+    stride: int,
+    method: str,
+    initial_guess: str,
+    results_dir: Path,
+) -> None:
+    """Estimate the trajectory of a sequence and write it (KITTI + TUM), metrics and a plot."""
+    sequence = open_sequence(data_root=data_root, seq=seq, folder=folder, poses=poses, calib=calib)
+    indices = select_frames(len(sequence), frames, stride)
+    odometry = build_odometry(method, InitialGuess(initial_guess))
+    out = create_result_folder(results_dir, f"run_{sequence.name}_{method}")
+    config = {
+        "command": "run",
+        "sequence": sequence.name,
+        "data_root": data_root,
+        "folder": folder,
+        "frames": frames,
+        "stride": stride,
+        "method": method,
+        "initial_guess": initial_guess,
+    }
+    write_json(out / "config.json", provenance(config))
+    with frame_progress(f"{method} on {sequence.name}", len(indices)) as advance:
+        result, report = run_and_save(sequence, odometry, indices, out, progress=advance)
+    if result.interrupted:
+        console.print(f"[yellow]Interrupted after {len(result.frame_indices)} frames; partial results kept.")
+    if report is not None:
+        console.print(report_table(report, title=f"{method} on {sequence.name} (stride {stride})"))
+    else:
+        console.print("No ground truth for this sequence: trajectory written without scores.")
+    console.print(
+        f"{len(result.frame_indices)} frames at {result.frames_per_second:.1f} fps; results in {out}"
+    )

@@ -1,0 +1,114 @@
+"""Rich tables for evaluation reports and method comparisons (degrees and metres, as DESIGN asks)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from rich.table import Table
+
+from vcr_odom.metrics import EvaluationReport
+
+
+def _f(value: float, digits: int = 3) -> str:
+    return "–" if value is None or not math.isfinite(value) else f"{value:.{digits}f}"
+
+
+def drift_label(report: EvaluationReport) -> str:
+    drift = report.drift
+    if drift.short_sequence:
+        lengths = ", ".join(f"{length:g}" for length in drift.segment_lengths_m)
+        return f"drift over SHORT segments ({lengths} m; path {drift.path_length_m:.1f} m < 100 m)"
+    return "KITTI devkit drift (100..800 m segments)"
+
+
+def report_table(report: EvaluationReport, title: str = "Evaluation") -> Table:
+    """One method against ground truth, every figure with its unit."""
+    table = Table(title=title, show_header=True, header_style="bold")
+    table.add_column("metric")
+    table.add_column("value", justify="right")
+    drift, end, pairs, dcp, ate = (
+        report.drift,
+        report.endpoint,
+        report.pairs,
+        report.pairs.dcp,
+        report.ate_rpe,
+    )
+    rows = [
+        ("poses / path length", f"{report.num_poses} / {report.path_length_m:.1f} m"),
+        (drift_label(report), ""),
+        ("  t_rel [%]", _f(drift.t_rel_percent)),
+        ("  r_rel [deg/100 m]", _f(drift.r_rel_deg_per_100m)),
+        ("  segments", str(drift.num_segments)),
+        ("end-point drift [% of path]", _f(end.trans_error_percent)),
+        ("end-point error [m] / [deg]", f"{_f(end.trans_error_m)} / {_f(end.rot_error_deg)}"),
+        (f"per-pair errors ({pairs.num_pairs} pairs, stride {pairs.stride})", ""),
+        ("  rotation RMSE / MAE [deg]", f"{_f(pairs.rot_rmse_deg)} / {_f(pairs.rot_mae_deg)}"),
+        ("  translation RMSE / MAE [m]", f"{_f(pairs.trans_rmse_m)} / {_f(pairs.trans_mae_m)}"),
+        (
+            f"  success (< {pairs.success_rot_threshold_deg:g} deg and < {pairs.success_trans_threshold_m:g} m)",
+            f"{100 * pairs.success_rate:.1f} %",
+        ),
+        ("DCP-style (paper Table III)", ""),
+        ("  Euler RMSE / MAE [deg]", f"{_f(dcp.euler_rmse_deg)} / {_f(dcp.euler_mae_deg)}"),
+        ("  translation MSE / MAE [m², m]", f"{_f(dcp.trans_mse_m2, 5)} / {_f(dcp.trans_mae_m)}"),
+        (f"ATE RMSE [m] ({ate.ate_alignment} alignment)", _f(ate.ate_trans_rmse_m)),
+        (
+            f"RPE RMSE (delta {ate.rpe_delta_frames}) [m] / [deg]",
+            f"{_f(ate.rpe_trans_rmse_m)} / {_f(ate.rpe_rot_rmse_deg)}",
+        ),
+    ]
+    for name, value in rows:
+        table.add_row(name, value)
+    return table
+
+
+@dataclass
+class ComparisonRow:
+    method: str
+    needs_initial_guess: bool
+    report: EvaluationReport | None
+    frames_per_second: float
+    interrupted: bool = False
+
+
+def comparison_table(rows: Sequence[ComparisonRow], title: str) -> Table:
+    """Methods side by side on the same frames; a method that loses track shows it in every column."""
+    table = Table(title=title, header_style="bold")
+    for header in (
+        "method",
+        "prior",
+        "rot RMSE [deg]",
+        "rot MAE [deg]",
+        "trans RMSE [m]",
+        "trans MAE [m]",
+        "success",
+        "drift",
+        "end-pt drift [%]",
+        "ATE [m]",
+        "fps",
+    ):
+        table.add_column(header, justify="left" if header in ("method", "prior") else "right")
+    for row in rows:
+        prior = "init guess" if row.needs_initial_guess else "none (global)"
+        name = row.method + (" (interrupted)" if row.interrupted else "")
+        if row.report is None:
+            table.add_row(name, prior, *["–"] * 8, _f(row.frames_per_second, 1))
+            continue
+        pairs, drift = row.report.pairs, row.report.drift
+        drift_text = f"{_f(drift.t_rel_percent, 2)} % / {_f(drift.r_rel_deg_per_100m, 2)}°"
+        table.add_row(
+            name,
+            prior,
+            _f(pairs.rot_rmse_deg),
+            _f(pairs.rot_mae_deg),
+            _f(pairs.trans_rmse_m),
+            _f(pairs.trans_mae_m),
+            f"{100 * pairs.success_rate:.0f} %",
+            drift_text,
+            _f(row.report.endpoint.trans_error_percent, 2),
+            _f(row.report.ate_rpe.ate_trans_rmse_m),
+            _f(row.frames_per_second, 1),
+        )
+    return table

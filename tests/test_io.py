@@ -1,0 +1,67 @@
+"""File formats round-trip, bad files are named in errors, and writes are atomic."""
+
+import numpy as np
+import pytest
+from evo.tools import file_interface
+from scipy.spatial.transform import Rotation
+
+from vcr_odom import io
+from vcr_odom.errors import DataError
+from vcr_odom.geometry import make_transform
+
+
+def poses(count: int = 5) -> np.ndarray:
+    rotations = Rotation.random(count, random_state=0).as_matrix()
+    return np.stack([make_transform(r, [i, 2.0 * i, -0.5 * i]) for i, r in enumerate(rotations)])
+
+
+def test_kitti_poses_round_trip_and_evo_reads_them(tmp_path):
+    path = io.write_kitti_poses(tmp_path / "poses.txt", poses())
+    np.testing.assert_allclose(io.read_kitti_poses(path), poses(), atol=1e-9)
+    evo_path = file_interface.read_kitti_poses_file(str(path))
+    np.testing.assert_allclose(np.stack(evo_path.poses_se3), poses(), atol=1e-9)
+
+
+def test_tum_trajectory_matches_evo_reader(tmp_path):
+    stamps = np.arange(5) * 0.1
+    path = io.write_tum_trajectory(tmp_path / "traj.tum", poses(), stamps)
+    trajectory = file_interface.read_tum_trajectory_file(str(path))
+    np.testing.assert_allclose(trajectory.timestamps, stamps)
+    np.testing.assert_allclose(np.stack(trajectory.poses_se3), poses(), atol=1e-8)
+
+
+@pytest.mark.parametrize(
+    ("content", "expected"),
+    [("1 2 3\n", "expected 12 numbers"), ("", "empty"), ("a " * 12 + "\n", "expected 12 numbers")],
+)
+def test_bad_pose_files_are_named(tmp_path, content, expected):
+    path = tmp_path / "bad.txt"
+    path.write_text(content)
+    with pytest.raises(DataError, match=expected) as error:
+        io.read_kitti_poses(path)
+    assert "bad.txt" in str(error.value)
+
+
+def test_calib_round_trip_and_errors(tmp_path):
+    tr = poses(2)[1]
+    path = io.write_kitti_calib(tmp_path / "calib.txt", {"P0": np.arange(12.0), "Tr": tr})
+    calib = io.read_kitti_calib(path)
+    np.testing.assert_allclose(calib["Tr"], tr, atol=1e-12)
+    np.testing.assert_allclose(calib["P0"], np.arange(12.0))
+    (tmp_path / "broken.txt").write_text("Tr: 1 2 3\n")
+    with pytest.raises(DataError, match=r"broken\.txt.*12 numbers"):
+        io.read_kitti_calib(tmp_path / "broken.txt")
+
+
+def test_atomic_write_keeps_old_file_when_interrupted(tmp_path, monkeypatch):
+    target = tmp_path / "out.txt"
+    target.write_text("old")
+
+    def failing_replace(*_args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(io.os, "replace", failing_replace)
+    with pytest.raises(KeyboardInterrupt):
+        io.atomic_write_text(target, "new")
+    assert target.read_text() == "old"
+    assert [p.name for p in tmp_path.iterdir()] == ["out.txt"]

@@ -1,0 +1,85 @@
+"""Score trajectory files: load, put both in one frame, match frames, then :func:`metrics.evaluate`."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from vcr_odom.errors import DataError
+from vcr_odom.geometry import camera_to_lidar_poses, normalise_to_first
+from vcr_odom.io import read_kitti_calib, read_kitti_poses
+from vcr_odom.metrics import AteAlignment, EvaluationReport, evaluate
+from vcr_odom.odometry import select_frames
+
+
+@dataclass
+class FileEvaluation:
+    report: EvaluationReport
+    est: NDArray[np.float64]
+    gt: NDArray[np.float64]
+    frame: str
+    notes: list[str] = field(default_factory=list)
+
+
+def evaluate_files(
+    gt_path: Path,
+    est_path: Path,
+    *,
+    calib: Path | None = None,
+    frames: str | None = None,
+    stride: int | None = None,
+    ate_alignment: AteAlignment = "origin",
+) -> FileEvaluation:
+    """Evaluate a KITTI-format estimate against KITTI-format ground truth.
+
+    When the estimate covers only some ground-truth frames (``run --frames/--stride``), say which with
+    ``frames``/``stride``, or keep the run's ``frames.json`` beside the estimate and it is used.
+    """
+    gt = read_kitti_poses(gt_path)
+    est = read_kitti_poses(est_path)
+    notes: list[str] = []
+    indices = _frame_indices(len(gt), est_path, frames, stride, notes)
+    gt = gt[indices]
+    if len(est) != len(gt):
+        raise DataError(
+            f"{est_path} has {len(est)} poses but {gt_path} has {len(gt)} for the chosen frames; "
+            "pass --frames/--stride as given to run (or keep frames.json beside the estimate)"
+        )
+    frame = "as given (no --calib)"
+    if calib is not None:
+        tr = read_kitti_calib(calib).get("Tr")
+        if tr is None:
+            raise DataError(f"{calib} has no 'Tr' entry (velodyne -> camera) to convert the poses with")
+        gt, est = camera_to_lidar_poses(gt, tr), camera_to_lidar_poses(est, tr)
+        frame = "LiDAR frame"
+    return FileEvaluation(
+        report=evaluate(normalise_to_first(est), normalise_to_first(gt), ate_alignment=ate_alignment),
+        est=normalise_to_first(est),
+        gt=normalise_to_first(gt),
+        frame=frame,
+        notes=notes,
+    )
+
+
+def _frame_indices(
+    gt_length: int, est_path: Path, frames: str | None, stride: int | None, notes: list[str]
+) -> list[int]:
+    if frames is not None or stride is not None:
+        return select_frames(gt_length, frames, stride or 1)
+    sidecar = est_path.parent / "frames.json"
+    if sidecar.is_file():
+        try:
+            indices = [int(i) for i in json.loads(sidecar.read_text())["frame_indices"]]
+        except (ValueError, KeyError, TypeError) as error:
+            raise DataError(f"{sidecar}: expected {{'frame_indices': [int, ...]}}") from error
+        if indices and max(indices) >= gt_length:
+            raise DataError(
+                f"{sidecar} names frame {max(indices)} but the ground truth has {gt_length} poses"
+            )
+        notes.append(f"frames taken from {sidecar} ({len(indices)} frames)")
+        return indices
+    return list(range(gt_length))

@@ -1,0 +1,160 @@
+"""The frame loop: chain relative poses into a trajectory, timing each stage.
+
+Pairwise registrars are wrapped by :class:`PairwiseOdometry` so that the loop only ever talks to a
+:class:`~vcr_odom.registration.base.SequentialOdometry` (kiss-icp is one natively).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from enum import Enum
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from vcr_odom.data.base import LidarSequence, Points
+from vcr_odom.errors import ConfigError
+from vcr_odom.geometry import Transform
+from vcr_odom.registration.base import Registrar, SequentialOdometry
+
+
+class InitialGuess(str, Enum):
+    """Where a local method starts: the identity (the paper's ICP baseline) or the last motion."""
+
+    IDENTITY = "identity"
+    CONSTANT_VELOCITY = "constant-velocity"
+
+
+class PairwiseOdometry:
+    """Turns a pairwise :class:`Registrar` into a sequential odometry.
+
+    Each frame is prepared once; its prepared form serves as the source of one pair and the target of
+    the next. ``pose[t+1] = pose[t] @ T_t_(t+1)``.
+    """
+
+    def __init__(self, registrar: Registrar, initial_guess: InitialGuess = InitialGuess.CONSTANT_VELOCITY):
+        self.registrar = registrar
+        self.initial_guess = InitialGuess(initial_guess)
+        self.name = registrar.name
+        self.stage_seconds: dict[str, float] = {}
+        self.last_info: dict[str, Any] = {}
+        self.reset()
+
+    def reset(self) -> None:
+        self._previous: Any = None
+        self._pose: Transform = np.eye(4)
+        self._last_motion: Transform = np.eye(4)
+        self.stage_seconds = {"prepare": 0.0, "register": 0.0}
+        self.last_info = {}
+
+    def step(self, points: Points, timestamp: float) -> Transform:
+        started = time.perf_counter()
+        prepared = self.registrar.prepare(points)
+        self.stage_seconds["prepare"] += time.perf_counter() - started
+        if self._previous is None:
+            self._previous = prepared
+            return self._pose.copy()
+        guess = self._last_motion if self.initial_guess is InitialGuess.CONSTANT_VELOCITY else np.eye(4)
+        started = time.perf_counter()
+        result = self.registrar.register(prepared, self._previous, guess)
+        self.stage_seconds["register"] += time.perf_counter() - started
+        self.last_info = {"fitness": result.fitness, "inlier_rmse": result.inlier_rmse, **result.info}
+        self._last_motion = np.asarray(result.transform, dtype=np.float64)
+        self._pose = self._pose @ self._last_motion
+        self._previous = prepared
+        return self._pose.copy()
+
+
+@dataclass
+class OdometryRun:
+    """What a run produced; ``poses`` are LiDAR-frame poses of ``frame_indices``, the first = identity."""
+
+    method: str
+    frame_indices: list[int]
+    poses: NDArray[np.float64]
+    timestamps: NDArray[np.float64]
+    stage_seconds: dict[str, float]
+    wall_seconds: float
+    interrupted: bool = False
+    per_frame_info: list[dict[str, Any]] = field(default_factory=list)
+
+    @property
+    def frames_per_second(self) -> float:
+        processed = len(self.frame_indices)
+        return processed / self.wall_seconds if self.wall_seconds > 0 else float("nan")
+
+
+def select_frames(length: int, frames: str | None = None, stride: int = 1) -> list[int]:
+    """Frame indices for ``--frames A:B`` (Python slice semantics, B exclusive) and ``--stride K``."""
+    if stride < 1:
+        raise ConfigError(f"--stride must be a positive integer, got {stride}")
+    start, stop = 0, length
+    if frames:
+        parts = frames.split(":")
+        if len(parts) != 2:
+            raise ConfigError(f"--frames expects A:B (e.g. 0:100), got {frames!r}")
+        try:
+            start = int(parts[0]) if parts[0] else 0
+            stop = int(parts[1]) if parts[1] else length
+        except ValueError as error:
+            raise ConfigError(f"--frames expects integers A:B, got {frames!r}") from error
+        start, stop, _ = slice(start, stop).indices(length)
+    indices = list(range(start, stop, stride))
+    if len(indices) < 2:
+        raise ConfigError(
+            f"--frames {frames or ':'} with --stride {stride} selects {len(indices)} frame(s) of {length}; "
+            "odometry needs at least 2"
+        )
+    return indices
+
+
+def run_odometry(
+    sequence: LidarSequence,
+    method: SequentialOdometry,
+    frame_indices: Sequence[int],
+    *,
+    on_frame: Callable[[int, Transform], None] | None = None,
+) -> OdometryRun:
+    """Run ``method`` over the chosen frames. Ctrl-C stops cleanly and returns the partial trajectory."""
+    method.reset()
+    poses: list[Transform] = []
+    infos: list[dict[str, Any]] = []
+    used: list[int] = []
+    load_seconds = 0.0
+    method_seconds = 0.0
+    started = time.perf_counter()
+    interrupted = False
+    all_timestamps = sequence.timestamps
+    try:
+        for index in frame_indices:
+            load_started = time.perf_counter()
+            points = sequence.frame(index)
+            load_seconds += time.perf_counter() - load_started
+            step_started = time.perf_counter()
+            pose = method.step(points, float(all_timestamps[index]))
+            method_seconds += time.perf_counter() - step_started
+            poses.append(np.asarray(pose, dtype=np.float64))
+            infos.append(dict(getattr(method, "last_info", {})))
+            used.append(index)
+            if on_frame is not None:
+                on_frame(index, pose)
+    except KeyboardInterrupt:
+        interrupted = True
+    wall = time.perf_counter() - started
+    # "method" is the whole of step(); methods that time their own stages add them as "method/<stage>".
+    stages = {"load": load_seconds, "method": method_seconds}
+    stages |= {f"method/{k}": v for k, v in getattr(method, "stage_seconds", {}).items()}
+    stages["bookkeeping"] = max(wall - load_seconds - method_seconds, 0.0)
+    return OdometryRun(
+        method=method.name,
+        frame_indices=used,
+        poses=np.stack(poses) if poses else np.empty((0, 4, 4)),
+        timestamps=np.asarray(all_timestamps)[used] if used else np.empty(0),
+        stage_seconds=stages,
+        wall_seconds=wall,
+        interrupted=interrupted,
+        per_frame_info=infos,
+    )

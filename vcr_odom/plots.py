@@ -1,0 +1,82 @@
+"""Matplotlib figures written to PNG (headless backend; no display needed)."""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from collections.abc import Mapping
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+from numpy.typing import NDArray
+
+
+def _save(figure: plt.Figure, path: str | os.PathLike[str]) -> Path:
+    """Save through a temporary file so an interrupted run never leaves a truncated PNG."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp_name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=".png")
+    os.close(fd)
+    try:
+        figure.savefig(tmp_name, dpi=130, bbox_inches="tight")
+        os.replace(tmp_name, path)
+    finally:
+        Path(tmp_name).unlink(missing_ok=True)
+        plt.close(figure)
+    return path
+
+
+def plot_trajectories(
+    path: str | os.PathLike[str],
+    trajectories: Mapping[str, NDArray[np.float64]],
+    ground_truth: NDArray[np.float64] | None = None,
+    *,
+    title: str = "",
+    background_xy: NDArray[np.float64] | None = None,
+) -> Path:
+    """Top-down (x-y, LiDAR frame: x forward, y left) view of one or more trajectories over ground truth."""
+    figure, axes = plt.subplots(figsize=(7, 7))
+    if background_xy is not None and len(background_xy):
+        axes.scatter(background_xy[:, 0], background_xy[:, 1], s=0.2, c="0.75", linewidths=0, label="map")
+    if ground_truth is not None:
+        axes.plot(ground_truth[:, 0, 3], ground_truth[:, 1, 3], "k--", lw=2, label="ground truth")
+    for name, poses in trajectories.items():
+        axes.plot(poses[:, 0, 3], poses[:, 1, 3], lw=1.5, label=name)
+    first = next(iter(trajectories.values()), ground_truth)
+    if first is not None and len(first):
+        axes.plot(first[0, 0, 3], first[0, 1, 3], "ko", ms=5)
+    axes.set_xlabel("x [m]")
+    axes.set_ylabel("y [m]")
+    axes.set_aspect("equal", adjustable="datalim")
+    axes.grid(True, alpha=0.3)
+    axes.legend(loc="best", fontsize=8)
+    axes.set_title(title)
+    return _save(figure, path)
+
+
+def plot_pair_errors(
+    path: str | os.PathLike[str],
+    rotation_errors_deg: Mapping[str, NDArray[np.float64]],
+    translation_errors_m: Mapping[str, NDArray[np.float64]],
+    *,
+    title: str = "",
+) -> Path:
+    """Per-pair rotation and translation errors along the sequence, one line per method."""
+    figure, (top, bottom) = plt.subplots(2, 1, figsize=(8, 5), sharex=True)
+    for name, errors in rotation_errors_deg.items():
+        top.plot(errors, lw=1, label=name)
+    for name, errors in translation_errors_m.items():
+        bottom.plot(errors, lw=1, label=name)
+    top.set_ylabel("rotation error [deg]")
+    bottom.set_ylabel("translation error [m]")
+    bottom.set_xlabel("pair")
+    for axes in (top, bottom):
+        axes.grid(True, alpha=0.3)
+        axes.set_yscale("symlog", linthresh=1e-2)
+    top.legend(loc="best", fontsize=8)
+    top.set_title(title)
+    return _save(figure, path)
