@@ -1,0 +1,137 @@
+"""The frame loop: chaining convention, initial guesses, frame selection, Ctrl-C and result folders."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from vcr_odom.errors import ConfigError
+from vcr_odom.geometry import make_transform, relative, rotation_from_euler_zyx
+from vcr_odom.odometry import InitialGuess, PairwiseOdometry, run_odometry, select_frames
+from vcr_odom.registration.base import RegistrationResult
+from vcr_odom.results import create_result_folder, provenance, write_json
+
+
+class ToySequence:
+    """Frames that carry their own index, and a known trajectory to register against."""
+
+    name = "toy"
+    tr_velo_to_cam = None
+
+    def __init__(self, poses: np.ndarray):
+        self._poses = poses
+
+    def __len__(self) -> int:
+        return len(self._poses)
+
+    def frame(self, index: int) -> np.ndarray:
+        return np.full((1, 4), index, dtype=np.float32)
+
+    @property
+    def gt_poses(self) -> np.ndarray:
+        return self._poses
+
+    @property
+    def timestamps(self) -> np.ndarray:
+        return np.arange(len(self._poses)) * 0.1
+
+
+class OracleRegistrar:
+    """Returns the true T_target_source and records the initial guesses it was given."""
+
+    name = "oracle"
+    needs_initial_guess = True
+
+    def __init__(self, poses: np.ndarray, interrupt_at: int | None = None):
+        self.poses = poses
+        self.guesses: list[np.ndarray] = []
+        self.prepared: list[int] = []
+        self.interrupt_at = interrupt_at
+
+    def prepare(self, points: np.ndarray) -> int:
+        index = int(points[0, 0])
+        if index == self.interrupt_at:
+            raise KeyboardInterrupt
+        self.prepared.append(index)
+        return index
+
+    def register(self, source: int, target: int, initial_guess=None) -> RegistrationResult:
+        self.guesses.append(initial_guess)
+        return RegistrationResult(relative(self.poses[target], self.poses[source]))
+
+
+def curved_poses(count: int = 12) -> np.ndarray:
+    return np.stack(
+        [
+            make_transform(rotation_from_euler_zyx(0.05 * i, 0.0, 0.0), [i * 1.0, 0.1 * i * i, 0.0])
+            for i in range(count)
+        ]
+    )
+
+
+def test_chaining_follows_pose_t_plus_1_equals_pose_t_at_relative():
+    poses = curved_poses()
+    registrar = OracleRegistrar(poses)
+    run = run_odometry(ToySequence(poses), PairwiseOdometry(registrar), range(len(poses)))
+    np.testing.assert_allclose(run.poses, poses, atol=1e-12)
+    assert registrar.prepared == list(range(len(poses)))  # each frame prepared exactly once
+    assert run.frame_indices == list(range(len(poses)))
+    assert {"load", "method", "method/prepare", "method/register", "bookkeeping"} <= set(run.stage_seconds)
+
+
+def test_strided_run_matches_strided_ground_truth():
+    poses = curved_poses(20)
+    indices = select_frames(20, None, 5)
+    run = run_odometry(ToySequence(poses), PairwiseOdometry(OracleRegistrar(poses)), indices)
+    np.testing.assert_allclose(run.poses, poses[indices], atol=1e-12)
+
+
+def test_initial_guess_modes():
+    poses = curved_poses(5)
+    constant = OracleRegistrar(poses)
+    run_odometry(ToySequence(poses), PairwiseOdometry(constant, InitialGuess.CONSTANT_VELOCITY), range(5))
+    np.testing.assert_allclose(constant.guesses[0], np.eye(4))
+    np.testing.assert_allclose(constant.guesses[2], relative(poses[1], poses[2]), atol=1e-12)
+    identity = OracleRegistrar(poses)
+    run_odometry(ToySequence(poses), PairwiseOdometry(identity, InitialGuess.IDENTITY), range(5))
+    assert all(np.array_equal(guess, np.eye(4)) for guess in identity.guesses)
+
+
+def test_ctrl_c_returns_the_partial_trajectory():
+    poses = curved_poses(10)
+    run = run_odometry(
+        ToySequence(poses), PairwiseOdometry(OracleRegistrar(poses, interrupt_at=6)), range(10)
+    )
+    assert run.interrupted
+    assert run.frame_indices == list(range(6))
+    np.testing.assert_allclose(run.poses, poses[:6], atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    ("frames", "stride", "expected"),
+    [(None, 1, list(range(10))), ("2:8", 2, [2, 4, 6]), (":4", 1, [0, 1, 2, 3]), ("-3:", 1, [7, 8, 9])],
+)
+def test_select_frames(frames, stride, expected):
+    assert select_frames(10, frames, stride) == expected
+
+
+@pytest.mark.parametrize(
+    ("frames", "stride", "option"),
+    [("5", 1, "--frames"), ("a:b", 1, "--frames"), ("0:1", 1, "at least 2"), (None, 0, "--stride")],
+)
+def test_select_frames_rejects_bad_options(frames, stride, option):
+    with pytest.raises(ConfigError, match=option):
+        select_frames(10, frames, stride)
+
+
+def test_result_folders_are_unique_and_latest_points_at_the_newest(tmp_path):
+    first = create_result_folder(tmp_path, "run a/b")
+    second = create_result_folder(tmp_path, "run a/b")
+    assert first != second and first.is_dir() and second.is_dir()
+    assert (tmp_path / "latest").resolve() == second.resolve()
+    write_json(second / "config.json", provenance({"seed": 3, "path": second, "array": np.arange(3)}))
+    saved = json.loads((second / "config.json").read_text())
+    assert saved["config"] == {"seed": 3, "path": str(second), "array": [0, 1, 2]}
+    assert saved["git_revision"] and saved["versions"]["numpy"] == np.__version__
