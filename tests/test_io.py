@@ -65,3 +65,18 @@ def test_atomic_write_keeps_old_file_when_interrupted(tmp_path, monkeypatch):
         io.atomic_write_text(target, "new")
     assert target.read_text() == "old"
     assert [p.name for p in tmp_path.iterdir()] == ["out.txt"]
+
+
+def test_pose_rotations_are_projected_and_non_rotations_rejected(tmp_path):
+    noisy = poses()
+    noisy[:, :3, :3] += 2e-7  # what 7 printed digits do to a rotation
+    path = io.write_kitti_poses(tmp_path / "noisy.txt", noisy)
+    rotations = io.read_kitti_poses(path)[:, :3, :3]
+    np.testing.assert_allclose(
+        np.swapaxes(rotations, 1, 2) @ rotations, np.broadcast_to(np.eye(3), (5, 3, 3)), atol=1e-14
+    )
+    scaled = poses()
+    scaled[2, :3, :3] *= 2.0
+    io.write_kitti_poses(tmp_path / "scaled.txt", scaled)
+    with pytest.raises(DataError, match=r"scaled\.txt: pose 3 .*not a rotation"):
+        io.read_kitti_poses(tmp_path / "scaled.txt")
