@@ -1,0 +1,144 @@
+"""A plain folder of scans (``.bin``, ``.pcd`` or ``.ply``), for data that is not in the KITTI layout.
+
+Users bring recordings exported by other tools; this takes them as they are: files sorted naturally
+by name, an optional KITTI-format poses file, 10 Hz assumed unless a ``times.txt``-style file is given.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from vcr_odom.data.kitti import (
+    Points,
+    ScanFileSequence,
+    assumed_timestamps,
+    check_bin_size,
+    check_pose_count,
+    clean_points,
+    load_times,
+    natural_sort_key,
+    read_bin_scan,
+    read_tr,
+)
+from vcr_odom.errors import DataError
+from vcr_odom.io import read_kitti_poses
+
+SCAN_EXTENSIONS = (".bin", ".pcd", ".ply")
+
+_EMPTY_HEADER = re.compile(rb"^\s*(POINTS\s+0|element\s+vertex\s+0)\s*$", re.MULTILINE)
+
+
+def _reflectance(cloud: object, count: int) -> NDArray[np.float32]:
+    """Intensity if the file has it, else the first colour channel scaled to [0, 1], else zeros."""
+    attributes = cloud.point  # type: ignore[attr-defined]
+    for key in ("intensity", "reflectance", "remission"):
+        if key in attributes:
+            return attributes[key].numpy().reshape(count, -1)[:, 0].astype(np.float32)
+    if "colors" in attributes:
+        colours = attributes["colors"].numpy().reshape(count, -1)[:, 0]
+        if np.issubdtype(colours.dtype, np.integer):
+            return (colours / np.iinfo(colours.dtype).max).astype(np.float32)
+        return colours.astype(np.float32)
+    return np.zeros(count, dtype=np.float32)
+
+
+def read_open3d_scan(path: str | os.PathLike[str]) -> Points:
+    """Read a ``.pcd``/``.ply`` with open3d's tensor API (which keeps custom fields like intensity).
+
+    open3d only logs when it cannot parse a file; an unreadable file raises DataError here, while a
+    file whose header declares zero points is an empty frame (a warning), as for ``.bin`` scans.
+    """
+    import open3d as o3d  # heavy import, only when such files are used
+
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(f"scan file not found: {path}")
+    with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+        cloud = o3d.t.io.read_point_cloud(str(path))
+    if "positions" not in cloud.point or cloud.point.positions.shape[0] == 0:
+        with path.open("rb") as handle:
+            header = handle.read(4096)
+        if not _EMPTY_HEADER.search(header):
+            raise DataError(f"open3d could not read a point cloud from {path} (corrupt or unsupported file)")
+        return clean_points(np.zeros((0, 4), dtype=np.float32), path)
+    xyz = cloud.point.positions.numpy().astype(np.float32).reshape(-1, 3)
+    points = np.column_stack([xyz, _reflectance(cloud, len(xyz))])
+    return clean_points(points, path)
+
+
+def read_scan(path: str | os.PathLike[str]) -> Points:
+    """Read any supported scan file by its extension."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix == ".bin":
+        return read_bin_scan(path)
+    if suffix in (".pcd", ".ply"):
+        return read_open3d_scan(path)
+    raise DataError(
+        f"{path}: unsupported scan format {suffix!r}; expected one of {', '.join(SCAN_EXTENSIONS)}"
+    )
+
+
+def list_scan_files(folder: Path) -> list[Path]:
+    """Scan files of one kind, naturally sorted; mixed kinds are an error (frame order would be a guess)."""
+    if not folder.is_dir():
+        raise DataError(f"scan folder does not exist: {folder}")
+    files = [p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in SCAN_EXTENSIONS]
+    if not files:
+        hint = f" (did you mean {folder / 'velodyne'}?)" if (folder / "velodyne").is_dir() else ""
+        raise DataError(f"no scans ({', '.join(SCAN_EXTENSIONS)}) in {folder}{hint}")
+    kinds = sorted({p.suffix.lower() for p in files})
+    if len(kinds) > 1:
+        raise DataError(f"{folder} mixes scan formats ({', '.join(kinds)}); keep one kind of file per folder")
+    return sorted(files, key=natural_sort_key)
+
+
+class FolderSequence(ScanFileSequence):
+    """A folder of ``.bin`` (KITTI float32x4), ``.pcd`` or ``.ply`` scans, read lazily.
+
+    ``poses`` is a KITTI-format poses file (one 3x4 pose a line, one line per scan). With a ``calib``
+    holding ``Tr`` the poses are taken as KITTI camera-frame poses and converted to the LiDAR frame;
+    without one they are taken as LiDAR-frame poses. ``times`` is an optional ``times.txt``-style file;
+    without it 10 Hz is assumed (one warning).
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike[str],
+        poses: str | os.PathLike[str] | None = None,
+        calib: str | os.PathLike[str] | None = None,
+        *,
+        times: str | os.PathLike[str] | None = None,
+    ) -> None:
+        self.path = Path(path).expanduser()
+        self.sequence_path = self.path
+        self.name = f"folder/{self.path.resolve().name}"
+        self.files = list_scan_files(self.path)
+        self.kind = self.files[0].suffix.lower()
+        if self.kind == ".bin":
+            for file in self.files:  # stat only, as for KITTI: fail before a long run, read nothing
+                check_bin_size(file)
+
+        self.poses_path = Path(poses).expanduser() if poses is not None else None
+        self.calib_path = Path(calib).expanduser() if calib is not None else None
+        self.times_path = Path(times).expanduser() if times is not None else None
+
+        tr = read_tr(self.calib_path, required=True) if self.calib_path is not None else None
+        pose_array = None
+        if self.poses_path is not None:
+            pose_array = read_kitti_poses(self.poses_path)
+            check_pose_count(pose_array, len(self.files), self.poses_path, self.path)
+        self._set_poses(pose_array, tr, camera_frame=tr is not None)
+
+        if self.times_path is not None:
+            self._timestamps = load_times(self.times_path, len(self.files))
+        else:
+            self._timestamps = assumed_timestamps(len(self.files), self.path)
+
+    def _read(self, path: Path) -> Points:
+        return read_scan(path)
