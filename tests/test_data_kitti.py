@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import vcr_odom.data.kitti as kitti
+import vcr_odom.data.scans as scans
 from vcr_odom.data import (
     DATA_ROOT_ENV,
     FolderSequence,
@@ -142,8 +142,8 @@ def test_frames_load_lazily(tmp_path, monkeypatch):
     def forbidden(*args, **kwargs):
         raise AssertionError("a frame was read at construction")
 
-    monkeypatch.setattr(kitti, "read_bin_scan", forbidden)
-    monkeypatch.setattr(kitti, "clean_points", forbidden)
+    monkeypatch.setattr(scans, "read_bin_scan", forbidden)
+    monkeypatch.setattr(scans, "clean_points", forbidden)
     sequence = quiet(KittiSequence, tmp_path, "00")
     assert len(sequence) == 4500 and len(sequence.timestamps) == 4500
 

@@ -7,13 +7,8 @@ from pathlib import Path
 
 from vcr_odom.data.base import LidarSequence, Points
 from vcr_odom.data.folder import FolderSequence, read_scan
-from vcr_odom.data.kitti import (
-    DATA_ROOT_ENV,
-    KittiSequence,
-    normalise_seq,
-    read_bin_scan,
-    resolve_data_root,
-)
+from vcr_odom.data.kitti import DATA_ROOT_ENV, KittiSequence, normalise_seq, resolve_data_root
+from vcr_odom.data.scans import read_bin_scan
 from vcr_odom.errors import ConfigError
 
 __all__ = [

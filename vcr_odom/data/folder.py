@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from vcr_odom.data.kitti import (
-    Points,
+from vcr_odom.data.base import Points
+from vcr_odom.data.scans import (
     ScanFileSequence,
     assumed_timestamps,
     check_bin_size,
