@@ -6,13 +6,13 @@ from pathlib import Path
 
 import click
 
-from vcr_odom.cli.options import initial_guess_option, results_option, sequence_options
+from vcr_odom.cli.options import describe_methods, initial_guess_option, results_option, sequence_options
 from vcr_odom.cli.progress import console, frame_progress
 from vcr_odom.cli.tables import ComparisonRow, comparison_table
 from vcr_odom.data import LidarSequence, open_sequence
 from vcr_odom.odometry import InitialGuess, select_frames
 from vcr_odom.pipeline import MethodOutcome, compare_methods
-from vcr_odom.registration import METHOD_NAMES, describe_methods
+from vcr_odom.registration import METHOD_NAMES
 from vcr_odom.results import create_result_folder, provenance, write_json
 
 DEFAULT_BASELINES = ("icp10", "icp", "fpfh", "kiss-icp")
@@ -24,7 +24,7 @@ DEFAULT_BASELINES = ("icp10", "icp", "fpfh", "kiss-icp")
     "--baseline",
     "-b",
     "baselines",
-    type=click.Choice(METHOD_NAMES),
+    type=click.Choice(list(METHOD_NAMES)),
     multiple=True,
     help=f"A method to run; repeat for several. Default: {', '.join(DEFAULT_BASELINES)}.",
 )

@@ -82,3 +82,11 @@ def initial_guess_option(function: F) -> F:
         show_default=True,
         help="Initial guess of local (ICP) methods; global ones ignore it.",
     )(function)
+
+
+def describe_methods() -> str:
+    """The method list for a command's epilog (click keeps \\b blocks unwrapped)."""
+    from vcr_odom.registration import METHOD_NAMES
+
+    lines = [f"  {name:<10} {text}" for name, text in METHOD_NAMES.items()]
+    return "\b\nMethods:\n" + "\n".join(lines)

@@ -6,13 +6,13 @@ from pathlib import Path
 
 import click
 
-from vcr_odom.cli.options import initial_guess_option, results_option, sequence_options
+from vcr_odom.cli.options import describe_methods, initial_guess_option, results_option, sequence_options
 from vcr_odom.cli.progress import console, frame_progress
 from vcr_odom.cli.tables import report_table
 from vcr_odom.data import open_sequence
 from vcr_odom.odometry import InitialGuess, select_frames
 from vcr_odom.pipeline import build_odometry, run_and_save
-from vcr_odom.registration import METHOD_NAMES, describe_methods
+from vcr_odom.registration import METHOD_NAMES
 from vcr_odom.results import create_result_folder, provenance, write_json
 
 DEFAULT_METHOD = "kiss-icp"
@@ -22,7 +22,7 @@ DEFAULT_METHOD = "kiss-icp"
 @sequence_options
 @click.option(
     "--method",
-    type=click.Choice(METHOD_NAMES),
+    type=click.Choice(list(METHOD_NAMES)),
     default=DEFAULT_METHOD,
     show_default=True,
     help="Registration method (see the list below).",

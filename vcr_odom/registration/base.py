@@ -34,7 +34,9 @@ class Registrar(Protocol):
 
     def prepare(self, points: Points) -> Any: ...
 
-    def register(self, source: Any, target: Any, initial_guess: Transform | None = None) -> RegistrationResult: ...
+    def register(
+        self, source: Any, target: Any, initial_guess: Transform | None = None
+    ) -> RegistrationResult: ...
 
 
 def identity_guess(initial_guess: Transform | None) -> Transform:

@@ -1,0 +1,84 @@
+"""kiss-icp's own odometry pipeline (adaptive threshold, local voxel map, constant velocity), unmodified.
+
+It keeps state across frames, so it is a :class:`SequentialOdometry`, not a pairwise registrar.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+from kiss_icp.config import KISSConfig, load_config
+from kiss_icp.kiss_icp import KissICP
+
+from vcr_odom.data.base import Points
+from vcr_odom.errors import ConfigError, DataWarning
+from vcr_odom.geometry import Transform
+
+
+def kiss_config(
+    max_range: float = 100.0,
+    min_range: float = 0.0,
+    voxel_size: float | None = None,
+    deskew: bool = False,
+    max_num_threads: int = 0,
+) -> KISSConfig:
+    """kiss-icp's default configuration (``load_config(None)``) with our data settings.
+
+    ``deskew=False``: KITTI ``.bin`` scans carry no per-point times (kiss-icp's own KITTI reader
+    passes none either). ``voxel_size=None`` follows kiss-icp's rule ``max_range / 100``.
+    """
+    if not 0.0 <= min_range < max_range:
+        raise ConfigError(f"need 0 <= min_range < max_range; got {min_range}, {max_range}")
+    config = load_config(None)
+    config.data.max_range = float(max_range)
+    config.data.min_range = float(min_range)
+    config.data.deskew = bool(deskew)
+    config.mapping.voxel_size = float(max_range / 100.0 if voxel_size is None else voxel_size)
+    config.registration.max_num_threads = int(max_num_threads)
+    return config
+
+
+class KissIcpOdometry:
+    """``kiss_icp.kiss_icp.KissICP`` fed frame by frame; ``step`` returns the pose in the frame-0 LiDAR frame.
+
+    ``kitti_correction=True`` applies kiss-icp's KITTI intrinsic fix (its KITTI reader does so) to
+    every frame; off by default so all methods see the same points. Measured on the real KITTI
+    sample (60 frames): per-step error mean 1.8 cm, max 4.9 cm (3.6 cm corrected), ~35 ms/frame.
+    """
+
+    name = "kiss-icp"
+
+    def __init__(
+        self,
+        max_range: float = 100.0,
+        min_range: float = 0.0,
+        voxel_size: float | None = None,
+        deskew: bool = False,
+        kitti_correction: bool = False,
+        max_num_threads: int = 0,
+    ) -> None:
+        self.config = kiss_config(max_range, min_range, voxel_size, deskew, max_num_threads)
+        self.kitti_correction = kitti_correction
+        self._odometry = KissICP(self.config)
+
+    def reset(self) -> None:
+        """Forget the map and the motion model: the next frame is frame 0 (identity)."""
+        self._odometry = KissICP(self.config)
+
+    def step(self, points: Points, timestamp: float = 0.0) -> Transform:
+        """Register one raw frame; ``timestamp`` is unused (no per-point times without deskew)."""
+        del timestamp
+        frame = np.asarray(points, dtype=np.float64)[:, :3]
+        frame = np.ascontiguousarray(frame[np.isfinite(frame).all(axis=1)])
+        if len(frame) == 0:
+            warnings.warn(
+                "kiss-icp: empty frame, pose extrapolated by the motion model", DataWarning, stacklevel=2
+            )
+        elif self.kitti_correction:
+            from kiss_icp.pybind import kiss_icp_pybind
+
+            vector = kiss_icp_pybind._Vector3dVector(frame)
+            frame = np.asarray(kiss_icp_pybind._correct_kitti_scan(vector))
+        self._odometry.register_frame(frame, np.array([]))
+        return np.asarray(self._odometry.last_pose, dtype=np.float64).copy()
