@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
@@ -15,7 +16,8 @@ from rich.progress import (
     TimeRemainingColumn,
 )
 
-console = Console()
+# Piped output (logs, CI, README tables) gets a wide console instead of rich's 80-column default.
+console = Console() if sys.stdout.isatty() else Console(width=150)
 
 
 @contextmanager

@@ -15,14 +15,6 @@ def _f(value: float, digits: int = 3) -> str:
     return "–" if value is None or not math.isfinite(value) else f"{value:.{digits}f}"
 
 
-def drift_label(report: EvaluationReport) -> str:
-    drift = report.drift
-    if drift.short_sequence:
-        lengths = ", ".join(f"{length:g}" for length in drift.segment_lengths_m)
-        return f"drift over SHORT segments ({lengths} m; path {drift.path_length_m:.1f} m < 100 m)"
-    return "KITTI devkit drift (100..800 m segments)"
-
-
 def report_table(report: EvaluationReport, title: str = "Evaluation") -> Table:
     """One method against ground truth, every figure with its unit."""
     table = Table(title=title, show_header=True, header_style="bold")
@@ -37,7 +29,7 @@ def report_table(report: EvaluationReport, title: str = "Evaluation") -> Table:
     )
     rows = [
         ("poses / path length", f"{report.num_poses} / {report.path_length_m:.1f} m"),
-        (drift_label(report), ""),
+        (drift.label, ""),
         ("  t_rel [%]", _f(drift.t_rel_percent)),
         ("  r_rel [deg/100 m]", _f(drift.r_rel_deg_per_100m)),
         ("  segments", str(drift.num_segments)),
@@ -76,37 +68,35 @@ class ComparisonRow:
 def comparison_table(rows: Sequence[ComparisonRow], title: str) -> Table:
     """Methods side by side on the same frames; a method that loses track shows it in every column."""
     table = Table(title=title, header_style="bold")
-    for header in (
+    headers = (
         "method",
         "prior",
-        "rot RMSE [deg]",
-        "rot MAE [deg]",
-        "trans RMSE [m]",
-        "trans MAE [m]",
+        "rot RMSE / MAE [deg]",
+        "trans RMSE / MAE [m]",
         "success",
-        "drift",
-        "end-pt drift [%]",
+        "t_rel [%]",
+        "r_rel [deg/100m]",
+        "end-point [%]",
         "ATE [m]",
         "fps",
-    ):
+    )
+    for header in headers:
         table.add_column(header, justify="left" if header in ("method", "prior") else "right")
     for row in rows:
         prior = "init guess" if row.needs_initial_guess else "none (global)"
         name = row.method + (" (interrupted)" if row.interrupted else "")
         if row.report is None:
-            table.add_row(name, prior, *["–"] * 8, _f(row.frames_per_second, 1))
+            table.add_row(name, prior, *["–"] * 7, _f(row.frames_per_second, 1))
             continue
         pairs, drift = row.report.pairs, row.report.drift
-        drift_text = f"{_f(drift.t_rel_percent, 2)} % / {_f(drift.r_rel_deg_per_100m, 2)}°"
         table.add_row(
             name,
             prior,
-            _f(pairs.rot_rmse_deg),
-            _f(pairs.rot_mae_deg),
-            _f(pairs.trans_rmse_m),
-            _f(pairs.trans_mae_m),
+            f"{_f(pairs.rot_rmse_deg)} / {_f(pairs.rot_mae_deg)}",
+            f"{_f(pairs.trans_rmse_m)} / {_f(pairs.trans_mae_m)}",
             f"{100 * pairs.success_rate:.0f} %",
-            drift_text,
+            _f(drift.t_rel_percent, 2),
+            _f(drift.r_rel_deg_per_100m, 2),
             _f(row.report.endpoint.trans_error_percent, 2),
             _f(row.report.ate_rpe.ate_trans_rmse_m),
             _f(row.frames_per_second, 1),
