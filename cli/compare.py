@@ -43,7 +43,9 @@ def compare(
     results_dir: Path,
 ) -> None:
     """Run the methods on the same frames and print one table (per-pair errors, drift, speed)."""
-    sequence = open_sequence(data_root=data_root, seq=seq, folder=folder, poses=poses, calib=calib)
+    sequence = open_sequence(
+        None if folder else seq, data_root=data_root, folder=folder, poses=poses, calib=calib
+    )
     methods = list(dict.fromkeys(baselines or DEFAULT_BASELINES))
     compare_sequence(sequence, methods, frames, stride, initial_guess, results_dir, data_root=data_root)
 

@@ -8,6 +8,7 @@ from vcr_odom.cli.compare import compare
 from vcr_odom.cli.demo import demo
 from vcr_odom.cli.evaluate import evaluate
 from vcr_odom.cli.options import FriendlyGroup
+from vcr_odom.cli.progress import show_warnings_on_console
 from vcr_odom.cli.run import run
 from vcr_odom.cli.synth import synth
 
@@ -16,6 +17,7 @@ from vcr_odom.cli.synth import synth
 @click.version_option(package_name="vcr-odom")
 def cli() -> None:
     """LiDAR odometry with VCR-Net and classical baselines, scored honestly against ground truth."""
+    show_warnings_on_console()
 
 
 for command in (run, evaluate, compare, synth, demo):

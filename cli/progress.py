@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+import warnings
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
@@ -17,7 +18,7 @@ from rich.progress import (
 )
 
 # Piped output (logs, CI, README tables) gets a wide console instead of rich's 80-column default.
-console = Console() if sys.stdout.isatty() else Console(width=150)
+console = Console() if sys.stdout.isatty() else Console(width=170)
 
 
 @contextmanager
@@ -40,3 +41,12 @@ def frame_progress(description: str, total: int) -> Iterator[Callable[..., None]
             progress.update(task, fps=f"{speed:5.1f} fps" if speed else "")
 
         yield advance
+
+
+def show_warnings_on_console() -> None:
+    """Print library warnings (NaN points dropped, 10 Hz assumed, ...) as one short yellow line each."""
+
+    def show(message, category, *_args, **_kwargs) -> None:
+        console.print(f"[yellow]warning:[/] {message}", highlight=False)
+
+    warnings.showwarning = show

@@ -42,7 +42,9 @@ def run(
     results_dir: Path,
 ) -> None:
     """Estimate the trajectory of a sequence and write it (KITTI + TUM), metrics and a plot."""
-    sequence = open_sequence(data_root=data_root, seq=seq, folder=folder, poses=poses, calib=calib)
+    sequence = open_sequence(
+        None if folder else seq, data_root=data_root, folder=folder, poses=poses, calib=calib
+    )
     indices = select_frames(len(sequence), frames, stride)
     odometry = build_odometry(method, InitialGuess(initial_guess))
     out = create_result_folder(results_dir, f"run_{sequence.name}_{method}")
