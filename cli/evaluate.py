@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from vcr_odom.cli.progress import console
+from vcr_odom.cli.progress import console, notes
 from vcr_odom.cli.tables import report_table
 from vcr_odom.evaluation import evaluate_files
 from vcr_odom.plots import plot_pair_errors, plot_trajectories
@@ -81,7 +81,7 @@ def evaluate(
         gt_path, est_path, calib=calib, frames=frames, stride=stride, ate_alignment=align
     )
     for note in evaluation.notes:
-        console.print(f"[dim]{note}")
+        notes.print(f"[dim]{note}")
     if json_path is not None and str(json_path) == "-":
         click.echo(json.dumps(evaluation.report.to_dict(include_arrays=True), indent=2))
         return

@@ -19,6 +19,8 @@ from rich.progress import (
 
 # Piped output (logs, CI, README tables) gets a wide console instead of rich's 80-column default.
 console = Console() if sys.stdout.isatty() else Console(width=170)
+notes = Console(stderr=True)
+"""Warnings and side notes go to stderr, so ``--json -`` output stays parseable."""
 
 
 @contextmanager
@@ -47,6 +49,6 @@ def show_warnings_on_console() -> None:
     """Print library warnings (NaN points dropped, 10 Hz assumed, ...) as one short yellow line each."""
 
     def show(message, category, *_args, **_kwargs) -> None:
-        console.print(f"[yellow]warning:[/] {message}", highlight=False)
+        notes.print(f"[yellow]warning:[/] {message}", highlight=False)
 
     warnings.showwarning = show

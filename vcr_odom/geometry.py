@@ -118,7 +118,7 @@ def project_to_se3(poses: ArrayLike) -> Transform:
     """
     poses = np.array(poses, dtype=np.float64)
     u, _, vt = np.linalg.svd(poses[..., :3, :3])
-    fix = np.ones(poses.shape[:-2] + (3,))
+    fix = np.ones((*poses.shape[:-2], 3))
     fix[..., 2] = np.sign(np.linalg.det(u @ vt))
     poses[..., :3, :3] = (u * fix[..., None, :]) @ vt
     poses[..., 3, :] = (0.0, 0.0, 0.0, 1.0)
