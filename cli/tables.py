@@ -6,6 +6,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+from rich.markup import escape
 from rich.table import Table
 
 from vcr_odom.metrics import EvaluationReport
@@ -52,7 +53,7 @@ def report_table(report: EvaluationReport, title: str = "Evaluation") -> Table:
         ),
     ]
     for name, value in rows:
-        table.add_row(name, value)
+        table.add_row(escape(name), value)  # names hold units in [brackets], not markup
     return table
 
 
@@ -81,7 +82,7 @@ def comparison_table(rows: Sequence[ComparisonRow], title: str) -> Table:
         "fps",
     )
     for header in headers:
-        table.add_column(header, justify="left" if header in ("method", "prior") else "right")
+        table.add_column(escape(header), justify="left" if header in ("method", "prior") else "right")
     for row in rows:
         prior = "init guess" if row.needs_initial_guess else "none (global)"
         name = row.method + (" (interrupted)" if row.interrupted else "")

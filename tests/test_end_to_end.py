@@ -61,7 +61,7 @@ def test_run_writes_a_complete_result_folder_that_eval_scores_identically(synthe
         "--results-dir",
         str(results),
     )
-    assert "rotation RMSE / MAE" in output
+    assert "rotation RMSE / MAE [deg]" in output and "t_rel [%]" in output
     folder = (results / "latest").resolve()
     for name in (
         "config.json",
@@ -148,6 +148,7 @@ def test_compare_prints_every_method_and_overlays_them(synthetic_root, tmp_path)
         str(tmp_path),
     )
     assert "icp10" in output and "kiss-icp" in output and "success" in output
+    assert "rot RMSE / MAE [deg]" in output and "r_rel [deg/100m]" in output  # units survive rich markup
     folder = (tmp_path / "latest").resolve()
     summary = json.loads((folder / "compare.json").read_text())
     assert set(summary) == {"icp10", "kiss-icp"}
