@@ -80,3 +80,10 @@ def test_pose_rotations_are_projected_and_non_rotations_rejected(tmp_path):
     io.write_kitti_poses(tmp_path / "scaled.txt", scaled)
     with pytest.raises(DataError, match=r"scaled\.txt: pose 3 .*not a rotation"):
         io.read_kitti_poses(tmp_path / "scaled.txt")
+
+
+def test_written_files_follow_the_umask_like_any_other_file(tmp_path):
+    reference = tmp_path / "plain.txt"
+    reference.write_text("x")
+    written = io.atomic_write_text(tmp_path / "atomic.txt", "x")
+    assert written.stat().st_mode == reference.stat().st_mode

@@ -6,7 +6,7 @@ Every writer goes through :func:`atomic_write_text` so an interrupted run never 
 from __future__ import annotations
 
 import os
-import tempfile
+import secrets
 from pathlib import Path
 
 import numpy as np
@@ -16,17 +16,24 @@ from vcr_odom.errors import DataError
 from vcr_odom.geometry import project_to_se3
 
 
+def temporary_sibling(path: str | os.PathLike[str]) -> Path:
+    """A fresh hidden name beside ``path`` for write-then-rename (created by the caller, so the
+    umask applies: ``mkstemp`` would leave result files readable by their owner only)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
+
+
 def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> Path:
     """Write ``data`` to a temporary file beside ``path``, then rename it into place."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    temporary = temporary_sibling(path)
     try:
-        with os.fdopen(fd, "wb") as handle:
+        with open(temporary, "xb") as handle:
             handle.write(data)
-        os.replace(tmp_name, path)
+        os.replace(temporary, path)
     except BaseException:
-        Path(tmp_name).unlink(missing_ok=True)
+        temporary.unlink(missing_ok=True)
         raise
     return path
 

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-import tempfile
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -14,18 +13,18 @@ import matplotlib.pyplot as plt
 import numpy as np
 from numpy.typing import NDArray
 
+from vcr_odom.io import temporary_sibling
+
 
 def _save(figure: plt.Figure, path: str | os.PathLike[str]) -> Path:
     """Save through a temporary file so an interrupted run never leaves a truncated PNG."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=".png")
-    os.close(fd)
+    temporary = temporary_sibling(path)
     try:
-        figure.savefig(tmp_name, dpi=130, bbox_inches="tight")
-        os.replace(tmp_name, path)
+        figure.savefig(temporary, dpi=130, bbox_inches="tight", format="png")
+        os.replace(temporary, path)
     finally:
-        Path(tmp_name).unlink(missing_ok=True)
+        temporary.unlink(missing_ok=True)
         plt.close(figure)
     return path
 
