@@ -18,11 +18,17 @@ DEMO_METHODS = ["icp10", "icp", "kiss-icp"]
 @click.option(
     "--frames",
     type=click.IntRange(min=10),
-    default=100,
+    default=150,
     show_default=True,
     help="Length of the synthetic sequence.",
 )
-@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the synthetic scene and drive.")
+@click.option(
+    "--seed",
+    type=int,
+    default=3,
+    show_default=True,
+    help="Seed of the synthetic scene and drive (3 has a turn).",
+)
 @click.option(
     "--results-dir",
     type=click.Path(path_type=Path, file_okay=False),
