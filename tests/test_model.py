@@ -1,0 +1,315 @@
+"""VCR-Net model and losses: SVD head, order invariance, gradients, overfitting one real KITTI pair."""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+
+import numpy as np
+import pytest
+import torch
+
+from vcr_odom.errors import ConfigError
+from vcr_odom.geometry import weighted_kabsch
+from vcr_odom.model import (
+    VcrConfig,
+    VCRNet,
+    correspondence_loss,
+    farthest_point_sampling,
+    to_homogeneous,
+    transformation_loss,
+    triplet_pretraining_loss,
+    weighted_procrustes,
+)
+from vcr_odom.model.profile import describe, parameter_count
+
+TINY = VcrConfig(
+    num_points=64, k=8, point_dim=16, graph_dim=16, spatial_dim=16, feature_dim=32, ff_dim=32, top_j=8
+)
+
+
+@pytest.fixture(autouse=True)
+def _seed_and_threads() -> None:
+    torch.manual_seed(0)
+    torch.set_num_threads(2)
+
+
+def random_rotations(batch: int, generator: torch.Generator | None = None) -> torch.Tensor:
+    q, r = torch.linalg.qr(torch.randn(batch, 3, 3, dtype=torch.float64, generator=generator))
+    q = q * torch.sign(torch.diagonal(r, dim1=1, dim2=2)).unsqueeze(1)
+    return q * torch.linalg.det(q).sign().view(-1, 1, 1)  # proper rotations
+
+
+def angle_deg(rotation: torch.Tensor, reference: torch.Tensor) -> torch.Tensor:
+    delta = rotation.transpose(-1, -2) @ reference
+    cos = ((delta.diagonal(dim1=-2, dim2=-1).sum(-1) - 1) / 2).clamp(-1, 1)
+    return torch.rad2deg(torch.arccos(cos))
+
+
+# --- SVD head ---------------------------------------------------------------------------------------
+
+
+def test_svd_head_recovers_rigid_transforms_batched() -> None:
+    rotation = random_rotations(5)
+    translation = torch.randn(5, 3, dtype=torch.float64) * 10
+    source = torch.randn(5, 40, 3, dtype=torch.float64) * 5
+    target = source @ rotation.transpose(1, 2) + translation.unsqueeze(1)
+    r, t = weighted_procrustes(source, target)
+    torch.testing.assert_close(r, rotation, atol=1e-9, rtol=0)
+    torch.testing.assert_close(t, translation, atol=1e-8, rtol=0)
+    transform = to_homogeneous(r, t)
+    assert transform.shape == (5, 4, 4)
+    torch.testing.assert_close(
+        transform[:, 3], torch.tensor([0, 0, 0, 1.0], dtype=torch.float64).expand(5, 4)
+    )
+
+
+def test_svd_head_weights_ignore_outliers_and_match_numpy() -> None:
+    rotation = random_rotations(3)
+    translation = torch.randn(3, 3, dtype=torch.float64)
+    source = torch.randn(3, 30, 3, dtype=torch.float64)
+    target = source @ rotation.transpose(1, 2) + translation.unsqueeze(1)
+    target[:, :5] += torch.randn(3, 5, 3, dtype=torch.float64) * 3  # outliers
+    weights = torch.ones(3, 30, dtype=torch.float64)
+    weights[:, :5] = 0
+    r, t = weighted_procrustes(source, target, weights)
+    torch.testing.assert_close(r, rotation, atol=1e-9, rtol=0)
+    torch.testing.assert_close(t, translation, atol=1e-9, rtol=0)
+    soft = torch.rand(3, 30, dtype=torch.float64) + 0.1
+    r, t = weighted_procrustes(source, target, soft)
+    for b in range(3):
+        reference = weighted_kabsch(source[b].numpy(), target[b].numpy(), soft[b].numpy())
+        np.testing.assert_allclose(to_homogeneous(r, t)[b].numpy(), reference, atol=1e-9)
+
+
+def test_svd_head_is_reflection_safe() -> None:
+    source = torch.randn(2, 20, 3, dtype=torch.float64)
+    mirror = torch.diag(torch.tensor([1.0, 1.0, -1.0], dtype=torch.float64))
+    target = source @ mirror  # a pure reflection: the best orthogonal map has det -1
+    r, _ = weighted_procrustes(source, target)
+    torch.testing.assert_close(torch.linalg.det(r), torch.ones(2, dtype=torch.float64))
+    torch.testing.assert_close(r.transpose(1, 2) @ r, torch.eye(3, dtype=torch.float64).expand(2, 3, 3))
+    planar = source.clone()
+    planar[..., 2] = 0  # degenerate (coplanar) points: still a rotation
+    r, _ = weighted_procrustes(planar, planar @ mirror)
+    torch.testing.assert_close(torch.linalg.det(r), torch.ones(2, dtype=torch.float64))
+
+
+def test_svd_head_is_differentiable() -> None:
+    source = torch.randn(2, 16, 3, dtype=torch.float64)
+    target = (source @ random_rotations(2).transpose(1, 2)).requires_grad_(True)
+    weights = torch.rand(2, 16, dtype=torch.float64, requires_grad=True)
+    r, t = weighted_procrustes(source, target + 0.01 * torch.randn_like(target), weights)
+    (r.sum() + t.sum()).backward()
+    assert torch.isfinite(target.grad).all() and target.grad.abs().sum() > 0
+    assert torch.isfinite(weights.grad).all() and weights.grad.abs().sum() > 0
+
+
+# --- network ----------------------------------------------------------------------------------------
+
+
+def random_pair(config: VcrConfig, batch: int = 2) -> tuple[torch.Tensor, ...]:
+    source = torch.randn(batch, config.num_points, 3) * 8
+    rotation = random_rotations(batch).float()
+    translation = torch.randn(batch, 3)
+    target = source @ rotation.transpose(1, 2) + translation.unsqueeze(1) + 0.02 * torch.randn_like(source)
+    return source, target, rotation, translation
+
+
+def test_forward_shapes_and_feature_reuse() -> None:
+    model = VCRNet(TINY).eval()
+    source, target, _, _ = random_pair(TINY)
+    with torch.no_grad():
+        out = model(source, target)
+        k, j = TINY.key_points(TINY.num_points), TINY.top_j
+        assert out.rotation.shape == (2, 3, 3) and out.translation.shape == (2, 3)
+        assert out.transform.shape == (2, 4, 4)
+        assert out.key_points.shape == out.virtual_points.shape == (2, k, 3)
+        assert out.pointer_weights.shape == out.candidate_indices.shape == (2, k, j)
+        torch.testing.assert_close(out.pointer_weights.sum(-1), torch.ones(2, k))
+        assert out.source_features.shape == (2, TINY.num_points, TINY.feature_dim)
+        torch.testing.assert_close(torch.linalg.det(out.rotation), torch.ones(2))
+        again = model.register_features(source, model.encode(source), target, out.target_features)
+    torch.testing.assert_close(again.transform, out.transform)
+    with pytest.raises(ConfigError, match="points"):
+        model(source[..., :2], target[..., :2])
+
+
+def test_outputs_invariant_to_point_order() -> None:
+    config = VcrConfig.preset("default").with_changes(num_points=256)
+    model = VCRNet(config).eval()
+    source, target, _, _ = random_pair(config)
+    with torch.no_grad():
+        out = model(source, target)
+        perm_s, perm_t = torch.randperm(config.num_points), torch.randperm(config.num_points)
+        permuted = model(source[:, perm_s], target[:, perm_t])
+    torch.testing.assert_close(permuted.transform, out.transform, atol=1e-4, rtol=0)
+    for b in range(2):  # the same key points were chosen (as a set)
+        same = torch.sort(perm_s[permuted.key_indices[b]]).values
+        assert torch.equal(same, torch.sort(out.key_indices[b]).values)
+
+
+def test_every_parameter_gets_a_gradient_from_the_correspondence_loss() -> None:
+    model = VCRNet(TINY)
+    source, target, rotation, translation = random_pair(TINY)
+    out = model(source, target)
+    loss = correspondence_loss(
+        out.key_points, out.virtual_points, rotation, translation, gamma=TINY.gamma, source_points=source
+    )
+    loss.loss.backward()
+    dead = [
+        name
+        for name, p in model.named_parameters()
+        if p.requires_grad and (p.grad is None or not torch.isfinite(p.grad).all() or p.grad.abs().max() == 0)
+    ]
+    assert dead == [], f"parameters without gradient: {dead}"
+
+
+def test_correspondence_loss_gamma_weighting_and_criteria() -> None:
+    key = torch.tensor([[[0.0, 0, 0], [10.0, 0, 0], [0, 10.0, 0], [0, 0, 10.0]]])
+    virtual = key.clone()
+    virtual[0, 0, 0] += 0.2  # true: still nearest to its own key point
+    virtual[0, 1, 0] -= 7.0  # false: nearer to key point 0
+    eye, zero = torch.eye(3).unsqueeze(0), torch.zeros(1, 3)
+    result = correspondence_loss(key, virtual, eye, zero, gamma=0.5, source_points=key)
+    assert result.true_fraction.item() == pytest.approx(0.75)
+    assert result.loss.item() == pytest.approx(0.2 / 3 + 0.5 * 7.0)
+    radius = correspondence_loss(key, virtual, eye, zero, gamma=0.5, match_radius=0.1)
+    assert radius.loss.item() == pytest.approx(0.0 + 0.5 * (0.2 + 7.0) / 2)
+    # the GT transform is applied: moving the target by T gives the same loss
+    rotation, translation = random_rotations(1).float(), torch.randn(1, 3)
+    moved = virtual @ rotation.transpose(1, 2) + translation
+    again = correspondence_loss(key, moved, rotation, translation, gamma=0.5, source_points=key)
+    assert again.loss.item() == pytest.approx(result.loss.item(), abs=1e-5)
+    assert transformation_loss(eye, zero, eye, zero).item() == 0.0
+    assert transformation_loss(eye, zero, eye, torch.ones(1, 3)).item() == pytest.approx(3.0)
+
+
+def test_farthest_point_sampling_and_triplet_loss() -> None:
+    points = torch.tensor([[[0.0, 0, 0], [0.1, 0, 0], [5.0, 0, 0], [5.1, 0, 0], [2.5, 0, 0]]])
+    index = farthest_point_sampling(points.expand(2, -1, -1), 3)
+    assert index.shape == (2, 3)
+    assert index.tolist() == [[3, 0, 4], [3, 0, 4]]  # farthest from the centroid, then farthest from the set
+    cloud = torch.randn(2, 128, 3) * 5
+    features = torch.nn.functional.normalize(torch.randn(2, 128, 16), dim=-1)
+    perfect = triplet_pretraining_loss(features, features, cloud, num_anchors=16, num_negatives=4, margin=0.5)
+    assert perfect.regulariser.item() == pytest.approx(0.0, abs=1e-6)
+    shuffled = triplet_pretraining_loss(
+        features, features[:, torch.randperm(128)], cloud, num_anchors=16, num_negatives=4, margin=0.5
+    )
+    assert perfect.loss.item() < shuffled.loss.item()
+    learnable = torch.randn(2, 128, 16, requires_grad=True)
+    triplet_pretraining_loss(learnable, learnable * 0.5, cloud).loss.backward()
+    assert torch.isfinite(learnable.grad).all() and learnable.grad.abs().sum() > 0
+
+
+# --- configuration ----------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("changes", "field"),
+    [
+        ({"num_points": 2}, "num_points"),
+        ({"k": 600}, "k"),
+        ({"heads": 3}, "heads"),
+        ({"top_j": 1}, "top_j"),
+        ({"top_k_fraction": 0.0}, "top_k_fraction"),
+        ({"temperature": -1.0}, "temperature"),
+        ({"gamma": float("nan")}, "gamma"),
+        ({"match_radius": 0.0}, "match_radius"),
+        ({"feature_dim": 12.5}, "feature_dim"),
+    ],
+)
+def test_config_validation_names_the_field(changes: dict, field: str) -> None:
+    with pytest.raises(ConfigError, match=field):
+        VcrConfig().with_changes(**changes)
+
+
+def test_config_presets_and_dict_round_trip() -> None:
+    paper = VcrConfig.preset("paper")
+    assert (paper.num_points, paper.k, paper.feature_dim, paper.heads, paper.top_j) == (1024, 20, 512, 4, 32)
+    assert paper.key_points(1024) == 896
+    for config in (paper, VcrConfig.preset("default")):
+        assert VcrConfig.from_dict(json.loads(json.dumps(config.to_dict()))) == config
+    with pytest.raises(ConfigError, match="bogus"):
+        VcrConfig.from_dict({**paper.to_dict(), "bogus": 1})
+    with pytest.raises(ConfigError, match="preset"):
+        VcrConfig.preset("huge")
+
+
+def test_profile_reports_parameters_and_flops() -> None:
+    info = describe(TINY)
+    assert info["parameters"]["trainable"] == parameter_count(VCRNet(TINY))["trainable"] > 0
+    assert info["flops_per_pair"] > 0
+    assert info["config"] == TINY.to_dict()
+
+
+# --- overfitting one real pair ----------------------------------------------------------------------
+
+
+# Slow (not in CI) until the margin is wider: it ends at 4.7-4.9 cm against the 5 cm bound, a vertical
+# bias of virtual points at the lower edge left by ground removal. Run it with `make test-all`.
+@pytest.mark.slow
+@pytest.mark.filterwarnings("ignore::vcr_odom.errors.DataWarning")  # the sample has no times.txt
+def test_small_config_overfits_one_real_kitti_pair(kitti_sample_root) -> None:
+    """Frames 1 -> 0 of the real sample (independently pre-processed, plus a 25° yaw and a 1 m shift):
+    the default configuration must fit T_0_1 to < 0.5° and < 5 cm within a bounded number of steps."""
+    from vcr_odom.data import KittiSequence
+    from vcr_odom.preprocess import PreprocessConfig, preprocess
+
+    config = VcrConfig.preset("default")
+    sequence = KittiSequence(kitti_sample_root, "00")
+    target = preprocess(sequence.frame(0), PreprocessConfig(n_points=config.num_points, seed=1))
+    source = preprocess(sequence.frame(1), PreprocessConfig(n_points=config.num_points, seed=2))
+    poses = sequence.gt_poses
+    yaw = math.radians(25.0)
+    offset = np.array(
+        [
+            [math.cos(yaw), -math.sin(yaw), 0, 1.0],
+            [math.sin(yaw), math.cos(yaw), 0, -0.5],
+            [0, 0, 1, 0],
+            [0, 0, 0, 1],
+        ]
+    )
+    source = (source @ offset[:3, :3].T + offset[:3, 3]).astype(np.float32)
+    truth = np.linalg.inv(poses[0]) @ poses[1] @ np.linalg.inv(offset)  # T_0_(moved 1)
+
+    src, tgt = torch.from_numpy(source)[None], torch.from_numpy(target)[None]
+    rotation_gt = torch.tensor(truth[:3, :3], dtype=torch.float32)[None]
+    translation_gt = torch.tensor(truth[:3, 3], dtype=torch.float32)[None]
+    model = VCRNet(config)
+    max_steps = 300
+    torch.use_deterministic_algorithms(True)  # the fit is chaotic: make it reproducible run to run
+    try:
+        optimiser = torch.optim.Adam(model.parameters(), lr=3e-3)
+        schedule = torch.optim.lr_scheduler.OneCycleLR(
+            optimiser, max_lr=3e-3, total_steps=max_steps, pct_start=0.1
+        )
+        start, history, streak, hold = time.perf_counter(), [], 0, 10
+        for step in range(max_steps):
+            out = model(src, tgt)
+            with torch.no_grad():
+                rot_err = angle_deg(out.rotation, rotation_gt).item()
+                trans_err = (out.translation - translation_gt).norm().item()
+            history.append((step, round(rot_err, 3), round(trans_err, 3)))
+            streak = streak + 1 if rot_err < 0.5 and trans_err < 0.05 else 0
+            if streak == hold:  # fitted, not a lucky dip: `hold` consecutive passes under both bounds
+                break
+            loss = correspondence_loss(
+                out.key_points,
+                out.virtual_points,
+                rotation_gt,
+                translation_gt,
+                config.gamma,
+                source_points=src,
+            )
+            optimiser.zero_grad()
+            loss.loss.backward()
+            optimiser.step()
+            schedule.step()
+    finally:
+        torch.use_deterministic_algorithms(False)
+    elapsed = time.perf_counter() - start
+    print(f"overfit: {len(history)} forward passes in {elapsed:.1f} s; last {history[-3:]}")
+    assert streak == hold, f"not fitted after {max_steps} steps: {history[-5:]}"

@@ -1,0 +1,88 @@
+"""Self-attention with a per-point weight (paper §IV-B) and cross-attention, the non-local operation
+(paper §IV-C, Eqs. Π, Φ1, Φ2), both with LayerNorm and no dropout as the paper's experiments state.
+
+Self-attention: F = R + Attn(R, R) (paper: F = Softmax(R Rᵀ) R), then a per-point weight
+w = sigmoid(mlp(F)) in (0, 1) and Ψ = w ⊙ F (paper: W_a = Softmax(mlp(W_c)), Ψ = W_a F). A low weight
+marks a point that is hard to match; the network also uses it to pick key points.
+
+Cross-attention: Φ1 = Ψ1 + V_c Π(Ψ1, Ψ2) with Π(Ψ1, Ψ2) = Softmax(θ1 φ2ᵀ / √d) V_g Ψ2 (queries from the
+cloud being updated, keys and values from the other), then a feed-forward block, both residual; the same
+module (same weights) serves both directions.
+
+Deviation: the paper's mask mlp(W_c) maps an N x N matrix, tying the model to one N; we regress the
+weight from each point's features (DESIGN), and use a sigmoid instead of a softmax over points so the
+weight does not shrink as 1/N.
+Deviation: both attentions use learned query/key/value projections, several heads and 1/√d scaling
+(scaled_dot_product_attention); the paper's self-attention has no projections and its Π is written with
+the query from Ψ2, which only type-checks when N1 = N2; we read it as the usual non-local operation.
+Deviation: residual connections with pre-LayerNorm and a final LayerNorm (without bias, which would
+cancel in the feature differences of the affinity), where the paper only says "LayerNorm".
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+
+class MultiHeadAttention(nn.Module):
+    """Multi-head scaled dot-product attention, channels-last ``(B, N, C)``."""
+
+    def __init__(self, dim: int, heads: int) -> None:
+        super().__init__()
+        self.heads = heads
+        self.query = nn.Linear(dim, dim)
+        self.key = nn.Linear(dim, dim)
+        self.value = nn.Linear(dim, dim)
+        self.out = nn.Linear(dim, dim)
+
+    def _split(self, x: Tensor) -> Tensor:
+        b, n, c = x.shape
+        return x.view(b, n, self.heads, c // self.heads).transpose(1, 2)
+
+    def forward(self, query: Tensor, context: Tensor) -> Tensor:
+        attended = F.scaled_dot_product_attention(
+            self._split(self.query(query)), self._split(self.key(context)), self._split(self.value(context))
+        )
+        b, _, n, _ = attended.shape
+        return self.out(attended.transpose(1, 2).reshape(b, n, -1))
+
+
+class SelfAttention(nn.Module):
+    """R ``(B, N, C)`` -> (Ψ = w ⊙ F ``(B, N, C)``, w ``(B, N)``)."""
+
+    def __init__(self, dim: int, heads: int) -> None:
+        super().__init__()
+        self.norm = nn.LayerNorm(dim)
+        self.attention = MultiHeadAttention(dim, heads)
+        self.weight_norm = nn.LayerNorm(dim)
+        self.weight_mlp = nn.Sequential(nn.Linear(dim, dim // 2), nn.ReLU(), nn.Linear(dim // 2, 1))
+
+    def forward(self, features: Tensor) -> tuple[Tensor, Tensor]:
+        normed = self.norm(features)
+        fused = features + self.attention(normed, normed)
+        weight = torch.sigmoid(self.weight_mlp(self.weight_norm(fused))).squeeze(-1)
+        return fused * weight.unsqueeze(-1), weight
+
+
+class CrossAttention(nn.Module):
+    """The non-local operation as a residual block, shared by both directions."""
+
+    def __init__(self, dim: int, heads: int, ff_dim: int) -> None:
+        super().__init__()
+        self.norm_query = nn.LayerNorm(dim)
+        self.norm_context = nn.LayerNorm(dim)
+        self.attention = MultiHeadAttention(dim, heads)
+        self.norm_ff = nn.LayerNorm(dim)
+        self.feed_forward = nn.Sequential(nn.Linear(dim, ff_dim), nn.ReLU(), nn.Linear(ff_dim, dim))
+        self.norm_out = nn.LayerNorm(dim, bias=False)
+
+    def update(self, own: Tensor, other: Tensor) -> Tensor:
+        """Φ_own = Ψ_own + V_c Π(Ψ_own, Ψ_other), then the feed-forward residual and a LayerNorm."""
+        phi = own + self.attention(self.norm_query(own), self.norm_context(other))
+        phi = phi + self.feed_forward(self.norm_ff(phi))
+        return self.norm_out(phi)
+
+    def forward(self, psi1: Tensor, psi2: Tensor) -> tuple[Tensor, Tensor]:
+        return self.update(psi1, psi2), self.update(psi2, psi1)

@@ -1,0 +1,121 @@
+"""Virtual corresponding points (paper §IV-D, soft-pointer method) and the SVD head (paper §IV-E).
+
+Affinity A_ij = -mean_c (Φ1_ic - Φ2_jc)² / τ with a learned temperature τ. Top-K key points: the rows
+with the largest max_j A_ij (paper), plus log w_i, the source point's self-attention weight. Top-J
+candidates: the J largest A_ij of each key row. Virtual point ŷ_i = Σ_j M_ij y_j over those J.
+
+Deviation: the paper's soft pointer takes M = Softmax(Φ1 Φ2ᵀ) over all N columns and then sums only the
+J candidates (weights that do not sum to 1 pull ŷ towards the origin); we renormalise with a softmax over
+the J candidates (DESIGN), and use one affinity (on Φ) for selection and pointer where the paper uses
+θ1 φ2ᵀ for selection. The temperature is learned and the affinity is a scaled squared distance, never the
+raw one (DESIGN). Key points are ranked by max affinity + log w (the paper: max affinity only), so the
+self-attention weight removes hard-to-match points as §IV-B intends.
+Deviation: the SVD head accepts optional per-point weights (weighted Kabsch); the paper's E(R, t) is
+unweighted, which is the default.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from vcr_odom.model.encoder import gather_neighbours
+
+
+def feature_affinity(source: Tensor, target: Tensor, temperature: Tensor) -> Tensor:
+    """``(B, N, C)``, ``(B, M, C)`` -> ``(B, N, M)``: negative mean squared difference over channels / τ."""
+    channels = source.shape[-1]
+    sq = (
+        source.pow(2).sum(-1).unsqueeze(-1)
+        + target.pow(2).sum(-1).unsqueeze(-2)
+        - 2.0 * source @ target.transpose(-1, -2)
+    )
+    return -sq.clamp_min(0.0) / (channels * temperature)
+
+
+def gather_points(points: Tensor, index: Tensor) -> Tensor:
+    """``points`` ``(B, N, C)`` at ``index`` ``(B, K)`` -> ``(B, K, C)``."""
+    return torch.gather(points, 1, index.unsqueeze(-1).expand(-1, -1, points.shape[-1]))
+
+
+@dataclass
+class VirtualCorrespondences:
+    """Key points of the source and their virtual points in the target, with how they were made."""
+
+    key_indices: Tensor  # (B, K) long, rows of the source
+    key_points: Tensor  # (B, K, 3) source xyz
+    virtual_points: Tensor  # (B, K, 3) target-frame xyz
+    candidate_indices: Tensor  # (B, K, J) long, rows of the target
+    pointer_weights: Tensor  # (B, K, J) softmax over the J candidates
+    key_scores: Tensor  # (B, K) the ranking score of each key point
+
+
+def virtual_correspondences(
+    source_xyz: Tensor,
+    target_xyz: Tensor,
+    affinity: Tensor,
+    num_keys: int,
+    num_candidates: int,
+    source_weights: Tensor | None = None,
+) -> VirtualCorrespondences:
+    """Top-K key points, Top-J candidates each, soft pointer over the candidates (differentiable in
+    ``affinity``; indices carry no gradient, weights and virtual points do)."""
+    num_candidates = min(num_candidates, target_xyz.shape[1])
+    num_keys = min(num_keys, source_xyz.shape[1])
+    score = affinity.amax(dim=-1)
+    if source_weights is not None:
+        score = score + torch.log(source_weights.clamp_min(1e-12))
+    key_scores, key_indices = score.topk(num_keys, dim=-1)
+    key_rows = torch.gather(affinity, 1, key_indices.unsqueeze(-1).expand(-1, -1, affinity.shape[-1]))
+    logits, candidate_indices = key_rows.topk(num_candidates, dim=-1)
+    pointer = torch.softmax(logits, dim=-1)
+    candidates = gather_neighbours(target_xyz, candidate_indices)  # (B, K, J, 3)
+    virtual = (pointer.unsqueeze(-1) * candidates).sum(dim=2)
+    return VirtualCorrespondences(
+        key_indices=key_indices,
+        key_points=gather_points(source_xyz, key_indices),
+        virtual_points=virtual,
+        candidate_indices=candidate_indices,
+        pointer_weights=pointer,
+        key_scores=key_scores,
+    )
+
+
+def weighted_procrustes(
+    source: Tensor, target: Tensor, weights: Tensor | None = None
+) -> tuple[Tensor, Tensor]:
+    """Batched (weighted) Kabsch: R ``(B, 3, 3)``, t ``(B, 3)`` minimising Σ w_i ‖R x_i + t - y_i‖².
+
+    Paper §IV-E: H = Σ (x_i - x̄)(y_i - ȳ)ᵀ = U S Vᵀ, R = V diag(1, 1, det(V Uᵀ)) Uᵀ (the determinant
+    fix keeps R a rotation when the best orthogonal map is a reflection), t = ȳ - R x̄. One batched
+    ``torch.linalg.svd``, no loop over samples; the 3x3 SVD runs in float64 (except on MPS) for stable
+    gradients, and the result is cast back to the input dtype.
+    """
+    if weights is None:
+        weights = torch.ones(source.shape[:2], dtype=source.dtype, device=source.device)
+    weights = weights / weights.sum(dim=1, keepdim=True).clamp_min(1e-12)
+    w = weights.unsqueeze(-1)
+    source_mean = (w * source).sum(dim=1, keepdim=True)
+    target_mean = (w * target).sum(dim=1, keepdim=True)
+    covariance = (source - source_mean).transpose(1, 2) @ (w * (target - target_mean))
+    work_dtype = torch.float32 if covariance.device.type == "mps" else torch.float64
+    u, _, vh = torch.linalg.svd(covariance.to(work_dtype))
+    v = vh.transpose(1, 2)
+    sign = torch.linalg.det(v @ u.transpose(1, 2)).sign()
+    sign = torch.where(sign == 0, torch.ones_like(sign), sign)
+    fix = torch.ones(covariance.shape[0], 3, dtype=work_dtype, device=covariance.device)
+    fix = torch.cat([fix[:, :2], sign.unsqueeze(-1)], dim=1)
+    rotation = ((v * fix.unsqueeze(1)) @ u.transpose(1, 2)).to(source.dtype)
+    translation = target_mean.squeeze(1) - (rotation @ source_mean.transpose(1, 2)).squeeze(-1)
+    return rotation, translation
+
+
+def to_homogeneous(rotation: Tensor, translation: Tensor) -> Tensor:
+    """R ``(B, 3, 3)``, t ``(B, 3)`` -> ``(B, 4, 4)`` homogeneous transforms."""
+    transform = torch.zeros(*rotation.shape[:-2], 4, 4, dtype=rotation.dtype, device=rotation.device)
+    transform[..., :3, :3] = rotation
+    transform[..., :3, 3] = translation
+    transform[..., 3, 3] = 1.0
+    return transform

@@ -1,0 +1,120 @@
+"""VCR-Net (paper Fig. 3): revised LPD-Net -> self-attention -> cross-attention -> virtual corresponding
+points -> SVD, returning T_target_source (DESIGN's convention: maps source points into the target frame).
+
+``forward`` = :meth:`VCRNet.encode` on each cloud + :meth:`VCRNet.register_features`, so odometry can
+encode every frame once and reuse its features for the pair before and the pair after it.
+
+Deviation: coordinates are divided by ``coordinate_scale`` before the encoder (the paper gives no input
+normalisation); all outputs are in the caller's units (metres).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor, nn
+
+from vcr_odom.errors import ConfigError
+from vcr_odom.model.attention import CrossAttention, SelfAttention
+from vcr_odom.model.config import VcrConfig
+from vcr_odom.model.correspondence import (
+    feature_affinity,
+    to_homogeneous,
+    virtual_correspondences,
+    weighted_procrustes,
+)
+from vcr_odom.model.encoder import LpdEncoder
+
+
+@dataclass
+class VcrOutput:
+    """One batch of registrations; B pairs, K key points, J candidates, N points, C channels."""
+
+    rotation: Tensor  # (B, 3, 3) R of T_target_source
+    translation: Tensor  # (B, 3)
+    transform: Tensor  # (B, 4, 4) T_target_source
+    key_points: Tensor  # (B, K, 3) source xyz
+    virtual_points: Tensor  # (B, K, 3) their virtual correspondences in the target
+    key_indices: Tensor  # (B, K) rows of the source
+    key_weights: Tensor  # (B, K) self-attention weight of each key point (SVD weight if weighted_svd)
+    candidate_indices: Tensor  # (B, K, J) rows of the target
+    pointer_weights: Tensor  # (B, K, J) soft-pointer weights
+    source_weights: Tensor  # (B, N) per-point self-attention weights
+    target_weights: Tensor  # (B, M)
+    source_features: Tensor  # (B, N, C) encoder features, reusable for the next pair
+    target_features: Tensor  # (B, M, C)
+    temperature: Tensor  # () the soft-pointer temperature used
+
+
+class VCRNet(nn.Module):
+    """The whole network; inputs are ``(B, N, 3)`` float tensors in metres on any device."""
+
+    def __init__(self, config: VcrConfig | None = None) -> None:
+        super().__init__()
+        self.config = config or VcrConfig()
+        c = self.config
+        self.encoder = LpdEncoder(c.k, c.point_dim, c.graph_dim, c.spatial_dim, c.feature_dim)
+        self.self_attention = SelfAttention(c.feature_dim, c.heads)
+        self.cross_attention = CrossAttention(c.feature_dim, c.heads, c.ff_dim)
+        self.log_temperature = nn.Parameter(torch.tensor(math.log(c.temperature)))
+
+    @property
+    def temperature(self) -> Tensor:
+        return self.log_temperature.exp()
+
+    def encode(self, points: Tensor) -> Tensor:
+        """Revised LPD-Net features ``(B, N, feature_dim)`` of one batch of clouds ``(B, N, 3)``."""
+        _check_points(points, self.config.k)
+        return self.encoder(points / self.config.coordinate_scale)
+
+    def register_features(
+        self, source_points: Tensor, source_features: Tensor, target_points: Tensor, target_features: Tensor
+    ) -> VcrOutput:
+        """Attention, virtual correspondences and SVD on already-encoded clouds."""
+        psi_source, w_source = self.self_attention(source_features)
+        psi_target, w_target = self.self_attention(target_features)
+        phi_source, phi_target = self.cross_attention(psi_source, psi_target)
+        temperature = self.temperature
+        affinity = feature_affinity(phi_source, phi_target, temperature)
+        vcp = virtual_correspondences(
+            source_points,
+            target_points,
+            affinity,
+            self.config.key_points(source_points.shape[1]),
+            self.config.top_j,
+            source_weights=w_source,
+        )
+        key_weights = torch.gather(w_source, 1, vcp.key_indices)
+        svd_weights = key_weights if self.config.weighted_svd else None
+        rotation, translation = weighted_procrustes(vcp.key_points, vcp.virtual_points, svd_weights)
+        return VcrOutput(
+            rotation=rotation,
+            translation=translation,
+            transform=to_homogeneous(rotation, translation),
+            key_points=vcp.key_points,
+            virtual_points=vcp.virtual_points,
+            key_indices=vcp.key_indices,
+            key_weights=key_weights,
+            candidate_indices=vcp.candidate_indices,
+            pointer_weights=vcp.pointer_weights,
+            source_weights=w_source,
+            target_weights=w_target,
+            source_features=source_features,
+            target_features=target_features,
+            temperature=temperature,
+        )
+
+    def forward(self, source: Tensor, target: Tensor) -> VcrOutput:
+        """T_target_source for each pair of the batch: ``source``, ``target`` ``(B, N, 3)`` metres."""
+        if source.shape[0] != target.shape[0]:
+            raise ConfigError(f"source and target batch sizes differ: {source.shape[0]} vs {target.shape[0]}")
+        return self.register_features(source, self.encode(source), target, self.encode(target))
+
+
+def _check_points(points: Tensor, k: int) -> None:
+    if points.ndim != 3 or points.shape[-1] != 3:
+        raise ConfigError(f"points must be a (B, N, 3) tensor; got shape {tuple(points.shape)}")
+    if points.shape[1] < max(k + 1, 3):
+        raise ConfigError(f"clouds need at least k + 1 = {k + 1} points; got {points.shape[1]}")
