@@ -6,11 +6,16 @@ from pathlib import Path
 
 import click
 
-from vcr_odom.cli.options import describe_methods, initial_guess_option, results_option, sequence_options
+from vcr_odom.cli.options import (
+    FrameSelection,
+    describe_methods,
+    initial_guess_option,
+    results_option,
+    sequence_options,
+)
 from vcr_odom.cli.progress import console, frame_progress
 from vcr_odom.cli.tables import ComparisonRow, comparison_table
-from vcr_odom.data import LidarSequence, open_sequence
-from vcr_odom.odometry import InitialGuess, select_frames
+from vcr_odom.odometry import InitialGuess
 from vcr_odom.pipeline import MethodOutcome, compare_methods
 from vcr_odom.registration import METHOD_NAMES
 from vcr_odom.results import create_result_folder, provenance, write_json
@@ -31,45 +36,26 @@ DEFAULT_BASELINES = ("icp10", "icp", "fpfh", "kiss-icp")
 @initial_guess_option
 @results_option
 def compare(
-    data_root: Path | None,
-    seq: str,
-    folder: Path | None,
-    poses: Path | None,
-    calib: Path | None,
-    frames: str | None,
-    stride: int,
-    baselines: tuple[str, ...],
-    initial_guess: str,
-    results_dir: Path,
+    selection: FrameSelection, baselines: tuple[str, ...], initial_guess: str, results_dir: Path
 ) -> None:
     """Run the methods on the same frames and print one table (per-pair errors, drift, speed)."""
-    sequence = open_sequence(
-        None if folder else seq, data_root=data_root, folder=folder, poses=poses, calib=calib
-    )
     methods = list(dict.fromkeys(baselines or DEFAULT_BASELINES))
-    compare_sequence(sequence, methods, frames, stride, initial_guess, results_dir, data_root=data_root)
+    compare_sequence(selection, methods, initial_guess, results_dir)
 
 
 def compare_sequence(
-    sequence: LidarSequence,
-    methods: list[str],
-    frames: str | None,
-    stride: int,
-    initial_guess: str,
-    results_dir: Path,
-    **extra_config: object,
+    selection: FrameSelection, methods: list[str], initial_guess: str, results_dir: Path
 ) -> list[MethodOutcome]:
     """Shared by ``compare`` and ``demo``: run, print the table, say where the files are."""
-    indices = select_frames(len(sequence), frames, stride)
-    out = create_result_folder(results_dir, f"compare_{sequence.name}_stride{stride}")
+    sequence = selection.open()
+    indices = selection.indices(sequence)
+    out = create_result_folder(results_dir, f"compare_{sequence.name}_stride{selection.stride}")
     config = {
         "command": "compare",
         "sequence": sequence.name,
-        "frames": frames,
-        "stride": stride,
+        **selection.as_config(),
         "methods": methods,
         "initial_guess": initial_guess,
-        **extra_config,
     }
     write_json(out / "config.json", provenance(config))
     outcomes = compare_methods(
@@ -79,7 +65,7 @@ def compare_sequence(
         ComparisonRow(o.method, o.needs_initial_guess, o.report, o.run.frames_per_second, o.run.interrupted)
         for o in outcomes
     ]
-    span = f"frames {indices[0]}..{indices[-1]}, stride {stride}, {len(indices)} frames"
+    span = f"frames {indices[0]}..{indices[-1]}, stride {selection.stride}, {len(indices)} frames"
     console.print(comparison_table(rows, title=f"{sequence.name}: {span}"))
     if outcomes and outcomes[0].report is not None and outcomes[0].report.drift.short_sequence:
         console.print(f"[dim]drift column: {outcomes[0].report.drift.label}")

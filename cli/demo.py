@@ -7,8 +7,8 @@ from pathlib import Path
 import click
 
 from vcr_odom.cli.compare import compare_sequence
+from vcr_odom.cli.options import FrameSelection
 from vcr_odom.cli.progress import console
-from vcr_odom.data import open_sequence
 from vcr_odom.data.synth import generate_sequence
 
 DEMO_METHODS = ["icp10", "icp", "kiss-icp"]
@@ -41,5 +41,5 @@ def demo(frames: int, seed: int, results_dir: Path) -> None:
     data_root = results_dir / "demo-data"
     console.print(f"Generating {frames} synthetic frames (seed {seed}) in {data_root} ...")
     generate_sequence(data_root, seq="00", frames=frames, seed=seed)
-    sequence = open_sequence(data_root=data_root, seq="00")
-    compare_sequence(sequence, DEMO_METHODS, None, 1, "constant-velocity", results_dir, data_root=data_root)
+    selection = FrameSelection(data_root, "00", folder=None, poses=None, calib=None, frames=None, stride=1)
+    compare_sequence(selection, DEMO_METHODS, "constant-velocity", results_dir)

@@ -2,13 +2,17 @@
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, TypeVar
 
 import click
 
+from vcr_odom.data import LidarSequence, open_sequence
 from vcr_odom.errors import VcrOdomError
+from vcr_odom.odometry import select_frames
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -24,7 +28,8 @@ class FriendlyGroup(click.Group):
 
 
 def sequence_options(function: F) -> F:
-    """Where the frames come from: a KITTI-layout root plus ``--seq``, or a plain ``--folder`` of scans."""
+    """Where the frames come from (a KITTI-layout root plus ``--seq``, or a plain ``--folder`` of scans)
+    and which to use; the command receives them as one ``selection: FrameSelection`` argument."""
     decorators = [
         click.option(
             "--data-root",
@@ -58,9 +63,41 @@ def sequence_options(function: F) -> F:
             help="Use every K-th frame (larger motion between frames).",
         ),
     ]
+
+    @functools.wraps(function)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        names = ("data_root", "seq", "folder", "poses", "calib", "frames", "stride")
+        kwargs["selection"] = FrameSelection(**{name: kwargs.pop(name) for name in names})
+        return function(*args, **kwargs)
+
     for decorator in reversed(decorators):
-        function = decorator(function)
-    return function
+        wrapper = decorator(wrapper)
+    return wrapper  # type: ignore[return-value]
+
+
+@dataclass(frozen=True)
+class FrameSelection:
+    """What ``sequence_options`` parsed: the frames' source and which of its frames to use."""
+
+    data_root: Path | None
+    seq: str
+    folder: Path | None
+    poses: Path | None
+    calib: Path | None
+    frames: str | None
+    stride: int
+
+    def open(self) -> LidarSequence:
+        seq = None if self.folder else self.seq  # --seq has a default; --folder wins over it
+        return open_sequence(
+            seq, data_root=self.data_root, folder=self.folder, poses=self.poses, calib=self.calib
+        )
+
+    def indices(self, sequence: LidarSequence) -> list[int]:
+        return select_frames(len(sequence), self.frames, self.stride)
+
+    def as_config(self) -> dict[str, Any]:
+        return asdict(self)
 
 
 def results_option(function: F) -> F:

@@ -6,11 +6,16 @@ from pathlib import Path
 
 import click
 
-from vcr_odom.cli.options import describe_methods, initial_guess_option, results_option, sequence_options
+from vcr_odom.cli.options import (
+    FrameSelection,
+    describe_methods,
+    initial_guess_option,
+    results_option,
+    sequence_options,
+)
 from vcr_odom.cli.progress import console, frame_progress
 from vcr_odom.cli.tables import report_table
-from vcr_odom.data import open_sequence
-from vcr_odom.odometry import InitialGuess, select_frames
+from vcr_odom.odometry import InitialGuess
 from vcr_odom.pipeline import build_odometry, run_and_save
 from vcr_odom.registration import METHOD_NAMES
 from vcr_odom.results import create_result_folder, provenance, write_json
@@ -29,32 +34,16 @@ DEFAULT_METHOD = "kiss-icp"
 )
 @initial_guess_option
 @results_option
-def run(
-    data_root: Path | None,
-    seq: str,
-    folder: Path | None,
-    poses: Path | None,
-    calib: Path | None,
-    frames: str | None,
-    stride: int,
-    method: str,
-    initial_guess: str,
-    results_dir: Path,
-) -> None:
+def run(selection: FrameSelection, method: str, initial_guess: str, results_dir: Path) -> None:
     """Estimate the trajectory of a sequence and write it (KITTI + TUM), metrics and a plot."""
-    sequence = open_sequence(
-        None if folder else seq, data_root=data_root, folder=folder, poses=poses, calib=calib
-    )
-    indices = select_frames(len(sequence), frames, stride)
+    sequence = selection.open()
+    indices = selection.indices(sequence)
     odometry = build_odometry(method, InitialGuess(initial_guess))
     out = create_result_folder(results_dir, f"run_{sequence.name}_{method}")
     config = {
         "command": "run",
         "sequence": sequence.name,
-        "data_root": data_root,
-        "folder": folder,
-        "frames": frames,
-        "stride": stride,
+        **selection.as_config(),
         "method": method,
         "initial_guess": initial_guess,
     }
@@ -64,7 +53,7 @@ def run(
     if result.interrupted:
         console.print(f"[yellow]Interrupted after {len(result.frame_indices)} frames; partial results kept.")
     if report is not None:
-        console.print(report_table(report, title=f"{method} on {sequence.name} (stride {stride})"))
+        console.print(report_table(report, title=f"{method} on {sequence.name} (stride {selection.stride})"))
     else:
         console.print("No ground truth for this sequence: trajectory written without scores.")
     console.print(
