@@ -1,0 +1,135 @@
+"""VCR-Net weight files: safetensors with the model configuration and free-form metadata in the header.
+
+Why safetensors: a weight file is data, never code (``torch.load`` of a pickle can run anything), and
+its JSON header carries the :class:`VcrConfig` so a file can rebuild its own model. Every failure to
+load is a :class:`DataError` naming the file and what is wrong with it, so the CLI can print one line.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import torch
+from safetensors import SafetensorError
+from safetensors.torch import load as load_safetensors
+from safetensors.torch import save as save_safetensors
+
+from vcr_odom.errors import ConfigError, DataError
+from vcr_odom.io import atomic_write_bytes
+from vcr_odom.model.config import PRESETS, VcrConfig
+from vcr_odom.model.network import VCRNet
+
+FORMAT = "vcr-odom-weights/1"
+WEIGHTS_DIR = Path(__file__).resolve().parents[2] / "weights"
+
+
+def default_weights_path(preset: str = "default", must_exist: bool = True) -> Path:
+    """The repository's shipped weights for ``preset`` (``weights/vcr-<preset>.safetensors``).
+
+    With ``must_exist`` (the default) a missing file raises a DataError that says how to make one.
+    """
+    if preset not in PRESETS:
+        raise ConfigError(f"preset must be one of {', '.join(PRESETS)}; got {preset!r}")
+    path = WEIGHTS_DIR / f"vcr-{preset}.safetensors"
+    if must_exist and not path.is_file():
+        raise DataError(
+            f"no shipped weights for the {preset!r} configuration at {path}; train them with "
+            f"`vcr-odom train --preset {preset} --out runs/{preset}` and copy runs/{preset}/best.safetensors "
+            f"there, or pass --weights FILE"
+        )
+    return path
+
+
+def save_weights(
+    path: str | os.PathLike[str],
+    model: torch.nn.Module,
+    config: VcrConfig,
+    metadata: dict[str, Any] | None = None,
+) -> Path:
+    """Write ``model``'s parameters and buffers, ``config`` and JSON-able ``metadata`` atomically."""
+    module = getattr(model, "module", model)  # unwrap DistributedDataParallel
+    tensors = {name: value.detach().to("cpu").contiguous() for name, value in module.state_dict().items()}
+    header = {
+        "format": FORMAT,
+        "config": json.dumps(config.to_dict(), sort_keys=True),
+        "metadata": json.dumps(metadata or {}, sort_keys=True, default=str),
+    }
+    return atomic_write_bytes(path, save_safetensors(tensors, metadata=header))
+
+
+def read_weights(path: str | os.PathLike[str]) -> tuple[dict[str, torch.Tensor], VcrConfig, dict[str, Any]]:
+    """Tensors, stored configuration and metadata of a weight file, checked to be one of ours."""
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(f"weights file not found: {path}")
+    raw = path.read_bytes()
+    try:
+        tensors = load_safetensors(raw)
+        header = _header_metadata(raw)
+    except (SafetensorError, ValueError, KeyError, json.JSONDecodeError) as error:
+        raise DataError(
+            f"{path}: not a readable safetensors file (corrupt or truncated?): {error}"
+        ) from error
+    if header.get("format") != FORMAT or "config" not in header:
+        raise DataError(f"{path}: a safetensors file but not VCR-Net weights (no {FORMAT!r} header)")
+    try:
+        config = VcrConfig.from_dict(json.loads(header["config"]))
+        metadata = json.loads(header.get("metadata", "{}"))
+    except (json.JSONDecodeError, ConfigError, TypeError) as error:
+        raise DataError(f"{path}: the stored model configuration is invalid: {error}") from error
+    return tensors, config, metadata
+
+
+def load_weights(
+    path: str | os.PathLike[str], config: VcrConfig | None = None, device: str | torch.device = "cpu"
+) -> tuple[VCRNet, VcrConfig, dict[str, Any]]:
+    """Rebuild the VCRNet stored in ``path`` (in eval mode, on ``device``).
+
+    With ``config``, the file must have been trained with exactly that configuration; otherwise the
+    file's own configuration is used.
+    """
+    path = Path(path)
+    tensors, stored, metadata = read_weights(path)
+    if config is not None and config != stored:
+        wanted, found = config.to_dict(), stored.to_dict()
+        diffs = [f"{k}: file {found[k]!r}, requested {wanted[k]!r}" for k in wanted if wanted[k] != found[k]]
+        raise DataError(f"{path}: weights were trained with another configuration ({'; '.join(diffs)})")
+    model = VCRNet(stored)
+    check_state_dict(path, model.state_dict(), tensors)
+    model.load_state_dict(tensors)
+    return model.to(device).eval(), stored, metadata
+
+
+def check_state_dict(path: Path, expected: dict[str, torch.Tensor], found: dict[str, torch.Tensor]) -> None:
+    """DataError listing missing and unexpected tensors and shape mismatches, if any."""
+    problems = []
+    missing = sorted(set(expected) - set(found))
+    unexpected = sorted(set(found) - set(expected))
+    if missing:
+        problems.append(f"missing tensors: {', '.join(missing)}")
+    if unexpected:
+        problems.append(f"unexpected tensors: {', '.join(unexpected)}")
+    shapes = [
+        f"{name} {tuple(found[name].shape)} (model {tuple(expected[name].shape)})"
+        for name in sorted(set(expected) & set(found))
+        if found[name].shape != expected[name].shape
+    ]
+    if shapes:
+        problems.append(f"shape mismatches: {', '.join(shapes)}")
+    if problems:
+        raise DataError(f"{path}: tensors do not match the model: {'; '.join(problems)}")
+
+
+def _header_metadata(raw: bytes) -> dict[str, str]:
+    """The ``__metadata__`` of a safetensors header (8-byte little-endian length, then JSON)."""
+    if len(raw) < 8:
+        raise ValueError("file shorter than a safetensors header")
+    length = int.from_bytes(raw[:8], "little")
+    if length > len(raw) - 8:
+        raise ValueError("header length beyond end of file")
+    header = json.loads(raw[8 : 8 + length])
+    metadata = header.get("__metadata__", {}) if isinstance(header, dict) else {}
+    return metadata if isinstance(metadata, dict) else {}

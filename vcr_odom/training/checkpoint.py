@@ -1,0 +1,50 @@
+"""``last.pt``: the whole training state after an epoch, written atomically, checked when resumed.
+
+Why a pickle (torch.save) and not safetensors: optimiser and scheduler states and RNG states are nested
+Python objects. It is only ever read back by ``--resume`` of the run that wrote it; shipped weights are
+safetensors (``vcr_odom.model.weights``).
+"""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from vcr_odom.errors import ConfigError, DataError
+from vcr_odom.io import atomic_write_bytes
+from vcr_odom.model.config import VcrConfig
+
+CHECKPOINT_VERSION = 1
+
+
+def save_checkpoint(path: Path, state: dict[str, Any]) -> Path:
+    """Write ``state`` (plus the format version) to ``path`` through a temporary file and a rename."""
+    buffer = io.BytesIO()
+    torch.save({"version": CHECKPOINT_VERSION, **state}, buffer)
+    return atomic_write_bytes(path, buffer.getvalue())
+
+
+def load_checkpoint(path: Path, task: str, model_config: VcrConfig) -> dict[str, Any]:
+    """The checkpoint to resume from, checked to belong to the same task and model configuration."""
+    if not path.is_file():
+        raise DataError(f"cannot resume: no checkpoint at {path} (run once without --resume first)")
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as error:  # any unpickling failure: a bad file
+        raise DataError(f"{path}: not a readable checkpoint (corrupt or truncated?): {error}") from error
+    if not isinstance(state, dict) or state.get("version") != CHECKPOINT_VERSION:
+        raise DataError(f"{path}: not a vcr-odom checkpoint of version {CHECKPOINT_VERSION}")
+    if state["task"] != task:
+        raise ConfigError(f"{path} is a {state['task']!r} checkpoint; cannot resume it with {task!r}")
+    stored, wanted = state["model_config"], model_config.to_dict()
+    if stored != wanted:
+        diffs = [
+            f"{k}: checkpoint {stored.get(k)!r}, requested {v!r}"
+            for k, v in wanted.items()
+            if stored.get(k) != v
+        ]
+        raise ConfigError(f"{path}: model configuration differs from the checkpoint ({'; '.join(diffs)})")
+    return state

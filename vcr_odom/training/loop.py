@@ -1,0 +1,313 @@
+"""The one epoch loop behind ``train`` and ``pretrain``: set up (or resume), train, validate, record.
+
+Why resume is exact: the checkpoint holds model, optimiser, scheduler, grad scaler, best score, history
+and every rank's RNG states, and each epoch's data order depends only on (seed, epoch) (a generator
+seeded per epoch, ``DistributedSampler.set_epoch``, the dataset's own ``set_epoch``), so an interrupted
+run continued with ``resume=True`` computes the same parameters as one that never stopped.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import torch
+import torch.distributed as dist
+from torch import Tensor, nn
+from torch.nn.parallel import DistributedDataParallel
+from torch.utils.data import DataLoader, Dataset, DistributedSampler, RandomSampler, SequentialSampler
+
+from vcr_odom.errors import DataError
+from vcr_odom.model.config import VcrConfig
+from vcr_odom.model.network import VCRNet
+from vcr_odom.model.weights import load_weights, save_weights
+from vcr_odom.results import provenance, write_json
+from vcr_odom.training.checkpoint import load_checkpoint, save_checkpoint
+from vcr_odom.training.config import Progress, ProgressEvent, TrainConfig, TrainResult
+from vcr_odom.training.runtime import (
+    DistContext,
+    all_reduce_sum,
+    gather_rng_states,
+    init_distributed,
+    parameter_groups,
+    resolve_device,
+    seed_everything,
+    set_rng_state,
+)
+from vcr_odom.training.tasks import Task, unwrap
+
+
+@dataclass
+class Session:
+    """Everything one process of a run holds; ``module`` is what forward/backward go through (the
+    task's trainable module, DDP-wrapped under torchrun), ``net`` the whole VCRNet that is saved."""
+
+    task: Task
+    model_config: VcrConfig
+    config: TrainConfig
+    ctx: DistContext
+    device: torch.device
+    net: VCRNet
+    module: nn.Module
+    optimiser: torch.optim.Optimizer
+    scheduler: torch.optim.lr_scheduler.LRScheduler
+    scaler: torch.amp.GradScaler
+    amp: bool
+    amp_dtype: torch.dtype
+    start_epoch: int = 0
+    best_score: float = math.inf
+    best_epoch: int = -1
+    history: list[dict[str, Any]] = field(default_factory=list)
+
+    def autocast(self) -> torch.autocast:
+        """Mixed precision on CUDA only (``amp`` is False elsewhere)."""
+        return torch.autocast(self.device.type, dtype=self.amp_dtype, enabled=self.amp)
+
+
+def fit(
+    task: Task,
+    model_config: VcrConfig,
+    train_dataset: Dataset,
+    val_dataset: Dataset,
+    config: TrainConfig,
+    resume: bool = False,
+    progress: Progress | None = None,
+) -> TrainResult:
+    """Run ``task`` for ``config.epochs`` epochs (from the checkpoint's next epoch with ``resume``)."""
+    if len(train_dataset) == 0 or len(val_dataset) == 0:
+        raise DataError("training and validation sets must both hold at least one pair")
+    ctx = init_distributed(config.device)
+    try:
+        session = _start(task, model_config, config, resume, ctx)
+        for epoch in range(session.start_epoch, config.epochs):
+            if progress is not None and ctx.main and epoch == session.start_epoch:
+                progress(ProgressEvent("start", task.name, epoch, config.epochs))
+            train_metrics = _train_epoch(session, train_dataset, epoch, progress)
+            session.scheduler.step()
+            val_metrics = _validate(session, val_dataset, epoch)
+            _end_epoch(session, epoch, train_metrics, val_metrics, progress)
+    finally:
+        if ctx.owns_group:
+            dist.destroy_process_group()
+    out = config.out
+    return TrainResult(
+        session.net.eval(),
+        out,
+        out / "best.safetensors",
+        out / "last.pt",
+        session.history,
+        session.best_epoch,
+        session.best_score,
+    )
+
+
+def _start(
+    task: Task, model_config: VcrConfig, config: TrainConfig, resume: bool, ctx: DistContext
+) -> Session:
+    """Seed, build model and optimiser, restore the checkpoint if resuming, wrap in DDP if launched so."""
+    device = resolve_device(config.device, ctx.local_rank)
+    if device.type == "cuda":
+        torch.cuda.set_device(device)
+    if config.deterministic:
+        torch.use_deterministic_algorithms(True, warn_only=True)
+        torch.backends.cudnn.benchmark = False
+    seed_everything(config.seed + ctx.rank)
+    if config.init_weights is not None and not resume:
+        net, _, _ = load_weights(config.init_weights, model_config)
+    else:
+        net = VCRNet(model_config)
+    net.to(device).train()
+    trainable = task.trainable(net)
+    optimiser = torch.optim.Adam(parameter_groups(trainable, config.weight_decay), lr=config.lr)
+    amp = config.amp and device.type == "cuda"
+    amp_dtype = getattr(torch, config.amp_dtype)
+    session = Session(
+        task=task,
+        model_config=model_config,
+        config=config,
+        ctx=ctx,
+        device=device,
+        net=net,
+        module=trainable,
+        optimiser=optimiser,
+        scheduler=torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, T_max=config.epochs),
+        scaler=torch.amp.GradScaler("cuda", enabled=amp and amp_dtype == torch.float16),
+        amp=amp,
+        amp_dtype=amp_dtype,
+    )
+    if resume:
+        _restore(session, load_checkpoint(config.out / "last.pt", task.name, model_config))
+    elif ctx.main:
+        config.out.mkdir(parents=True, exist_ok=True)
+        record = {"task": task.name, "model": model_config.to_dict(), "train": config.to_dict()}
+        write_json(config.out / "run.json", provenance(record))
+    if ctx.world > 1:
+        ids = [device.index] if device.type == "cuda" else None
+        session.module = DistributedDataParallel(trainable, device_ids=ids)
+    return session
+
+
+def _restore(session: Session, state: dict[str, Any]) -> None:
+    session.net.load_state_dict(state["model"])
+    session.optimiser.load_state_dict(state["optimiser"])
+    session.scheduler.load_state_dict(state["scheduler"])
+    session.scaler.load_state_dict(state["scaler"])
+    session.start_epoch = state["epoch"] + 1
+    session.best_score, session.best_epoch = state["best_score"], state["best_epoch"]
+    session.history = list(state["history"])
+    rng = state["rng"]
+    set_rng_state(rng[session.ctx.rank] if session.ctx.rank < len(rng) else rng[0])
+
+
+def _end_epoch(
+    session: Session,
+    epoch: int,
+    train_metrics: dict[str, float],
+    val_metrics: dict[str, float],
+    progress: Progress | None,
+) -> None:
+    """Score, history entry and (rank 0) best.safetensors, last.pt, history.json; then a barrier."""
+    config, task = session.config, session.task
+    score = _score(val_metrics, config)
+    improved = score < session.best_score
+    if improved:
+        session.best_score, session.best_epoch = score, epoch
+    entry: dict[str, Any] = {"epoch": epoch, "lr": session.optimiser.param_groups[0]["lr"]}
+    entry.update({"score": score, "best": improved})
+    entry.update({f"train_{k}": v for k, v in train_metrics.items()})
+    entry.update({f"val_{k}": v for k, v in val_metrics.items()})
+    session.history.append(entry)
+    rng = gather_rng_states(session.ctx)  # collective: every rank takes part
+    if session.ctx.main:
+        out = config.out
+        out.mkdir(parents=True, exist_ok=True)
+        if improved:
+            metadata = {"task": task.name, **entry, "train_config": config.to_dict()}
+            save_weights(out / "best.safetensors", session.net, session.model_config, metadata)
+        state = {
+            "task": task.name,
+            "epoch": epoch,
+            "model": session.net.state_dict(),
+            "optimiser": session.optimiser.state_dict(),
+            "scheduler": session.scheduler.state_dict(),
+            "scaler": session.scaler.state_dict(),
+            "rng": rng,
+            "best_score": session.best_score,
+            "best_epoch": session.best_epoch,
+            "history": session.history,
+            "model_config": session.model_config.to_dict(),
+            "train_config": config.to_dict(),
+        }
+        save_checkpoint(out / "last.pt", state)
+        write_json(out / "history.json", session.history)
+        if progress is not None:
+            progress(ProgressEvent("epoch", task.name, epoch, config.epochs, metrics=entry))
+    if session.ctx.world > 1:
+        dist.barrier()
+
+
+def _train_epoch(
+    session: Session, dataset: Dataset, epoch: int, progress: Progress | None
+) -> dict[str, float]:
+    config = session.config
+    _set_epoch(dataset, epoch)
+    session.module.train()
+    loader = _loader(dataset, config, epoch, shuffle=True, ctx=session.ctx)
+    sums: dict[str, float] = {}
+    count = 0
+    for step, batch in enumerate(loader, start=1):
+        batch = _to_device(batch, session.device)
+        with session.autocast():
+            loss, metrics = session.task.loss(session.module, batch, config)
+        if not torch.isfinite(loss):
+            raise FloatingPointError(f"{session.task.name}: non-finite loss at epoch {epoch}, step {step}")
+        session.optimiser.zero_grad(set_to_none=True)
+        session.scaler.scale(loss).backward()
+        if config.grad_clip is not None:
+            session.scaler.unscale_(session.optimiser)
+            torch.nn.utils.clip_grad_norm_(session.module.parameters(), config.grad_clip)
+        session.scaler.step(session.optimiser)
+        session.scaler.update()
+        count += _accumulate(sums, metrics, batch["source"].shape[0])
+        if (
+            progress is not None
+            and session.ctx.main
+            and (step % config.log_every == 0 or step == len(loader))
+        ):
+            running = {k: v / count for k, v in sums.items()}
+            progress(
+                ProgressEvent("step", session.task.name, epoch, config.epochs, step, len(loader), running)
+            )
+    return _finish(sums, count, session)
+
+
+@torch.no_grad()
+def _validate(session: Session, dataset: Dataset, epoch: int) -> dict[str, float]:
+    """Validation means over the whole set (sharded across ranks, then summed)."""
+    _set_epoch(dataset, epoch)
+    session.module.eval()
+    inner = unwrap(session.module)  # no DDP hooks needed without backward
+    sums: dict[str, float] = {}
+    count = 0
+    for batch in _loader(dataset, session.config, epoch, shuffle=False, ctx=session.ctx):
+        batch = _to_device(batch, session.device)
+        with session.autocast():
+            _, metrics = session.task.loss(inner, batch, session.config)
+        count += _accumulate(sums, metrics, batch["source"].shape[0])
+    return _finish(sums, count, session)
+
+
+def _accumulate(sums: dict[str, float], metrics: dict[str, Tensor], size: int) -> int:
+    for name, value in metrics.items():
+        sums[name] = sums.get(name, 0.0) + float(value) * size
+    return size
+
+
+def _loader(dataset: Dataset, config: TrainConfig, epoch: int, shuffle: bool, ctx: DistContext) -> DataLoader:
+    """A loader whose order depends only on (seed, epoch), so a resumed epoch reads the same batches."""
+    generator = torch.Generator().manual_seed(config.seed * 1_000_003 + epoch)
+    if ctx.world > 1:
+        sampler: Any = DistributedSampler(dataset, ctx.world, ctx.rank, shuffle=shuffle, seed=config.seed)
+        sampler.set_epoch(epoch)
+    elif shuffle:
+        sampler = RandomSampler(dataset, generator=generator)
+    else:
+        sampler = SequentialSampler(dataset)
+    return DataLoader(
+        dataset,
+        batch_size=config.batch_size,
+        sampler=sampler,
+        num_workers=config.num_workers,
+        generator=generator,
+        drop_last=False,
+        persistent_workers=False,
+    )
+
+
+def _to_device(batch: dict[str, Any], device: torch.device) -> dict[str, Any]:
+    return {k: v.to(device, non_blocking=True) if isinstance(v, Tensor) else v for k, v in batch.items()}
+
+
+def _set_epoch(dataset: Dataset, epoch: int) -> None:
+    set_epoch = getattr(dataset, "set_epoch", None)
+    if callable(set_epoch):
+        set_epoch(epoch)
+
+
+def _finish(sums: dict[str, float], count: int, session: Session) -> dict[str, float]:
+    """Means over all ranks; squared pose errors become RMSEs (``rot_rmse_deg``, ``trans_rmse_m``)."""
+    names = sorted(sums)
+    totals = all_reduce_sum([sums[n] for n in names] + [float(count)], session.device, session.ctx)
+    means = {n: totals[i] / max(totals[-1], 1.0) for i, n in enumerate(names)}
+    if "rot_sq_deg" in means:
+        means["rot_rmse_deg"] = math.sqrt(means.pop("rot_sq_deg"))
+        means["trans_rmse_m"] = math.sqrt(means.pop("trans_sq_m"))
+    return means
+
+
+def _score(metrics: dict[str, float], config: TrainConfig) -> float:
+    """Lower is better. ``rmse`` normalises each RMSE by the issue's target (1°, 0.25 m)."""
+    if config.select_on == "rmse" and "rot_rmse_deg" in metrics:
+        return metrics["rot_rmse_deg"] / 1.0 + metrics["trans_rmse_m"] / 0.25
+    return metrics["loss"]
