@@ -204,11 +204,12 @@ def downsample(
     return points[np.sort(rng.choice(len(points), size=n, replace=False))]
 
 
-def preprocess(points: NDArray, config: PreprocessConfig | None = None) -> NDArray[np.float32]:
-    """Crop, remove the ground, down-sample: float32 ``(n_points, 3)`` (``(n, 4)`` with reflectance).
+def crop_and_remove_ground(points: NDArray, config: PreprocessConfig | None = None) -> NDArray[np.float32]:
+    """The expensive, deterministic half of :func:`preprocess` (finite, crop, ground), kept separate so
+    training caches run RANSAC once and draw several down-samplings from its result.
 
-    Never raises on a poor frame: non-finite points are dropped, a crop or ground removal that would
-    leave fewer than ``min_points`` is skipped, and the sampler pads; each fallback warns.
+    Never raises on a poor frame: non-finite points are dropped, and a crop or ground removal that
+    would leave fewer than ``min_points`` is skipped; each fallback warns.
     """
     config = config or PreprocessConfig()
     points = _as_points(points)
@@ -216,9 +217,9 @@ def preprocess(points: NDArray, config: PreprocessConfig | None = None) -> NDArr
     if not finite.all():
         warnings.warn(f"dropped {int((~finite).sum())} non-finite points", DataWarning, stacklevel=2)
         points = points[finite]
-    min_points = config.n_points if config.min_points is None else config.min_points
     if len(points) == 0:  # nothing to crop or segment: the sampler warns and returns zeros
-        return _select_columns(downsample(points, config.n_points, config.method, config.seed), config)
+        return points
+    min_points = config.n_points if config.min_points is None else config.min_points
     cropped = crop_range(points, config.min_range, config.max_range)
     if len(cropped) < min(min_points, len(points)):
         warnings.warn(
@@ -238,6 +239,13 @@ def preprocess(points: NDArray, config: PreprocessConfig | None = None) -> NDArr
             )
         else:
             points = without_ground
+    return points
+
+
+def preprocess(points: NDArray, config: PreprocessConfig | None = None) -> NDArray[np.float32]:
+    """Crop, remove the ground, down-sample: float32 ``(n_points, 3)`` (``(n, 4)`` with reflectance)."""
+    config = config or PreprocessConfig()
+    points = crop_and_remove_ground(points, config)
     sampled = downsample(points, config.n_points, config.method, config.seed, config.voxel_size)
     return _select_columns(sampled, config)
 
