@@ -11,6 +11,7 @@ from vcr_odom.cli.options import FriendlyGroup
 from vcr_odom.cli.progress import show_warnings_on_console
 from vcr_odom.cli.run import run
 from vcr_odom.cli.synth import synth
+from vcr_odom.cli.train import cache, pretrain_command, train_command
 
 
 @click.group(cls=FriendlyGroup, context_settings={"help_option_names": ["-h", "--help"]})
@@ -20,7 +21,7 @@ def cli() -> None:
     show_warnings_on_console()
 
 
-for command in (run, evaluate, compare, synth, demo):
+for command in (run, evaluate, compare, synth, demo, cache, pretrain_command, train_command):
     cli.add_command(command)
 
 if __name__ == "__main__":

@@ -127,3 +127,23 @@ def describe_methods() -> str:
 
     lines = [f"  {name:<10} {text}" for name, text in METHOD_NAMES.items()]
     return "\b\nMethods:\n" + "\n".join(lines)
+
+
+def vcr_options(function: F) -> F:
+    """``--weights`` and ``--device`` for the learned method (ignored by the classical ones)."""
+    function = click.option(
+        "--device",
+        type=click.Choice(["auto", "cpu", "cuda"]),
+        default="auto",
+        show_default=True,
+        help="Where VCR-Net runs (auto: CUDA when present).",
+    )(function)
+    return click.option(
+        "--weights",
+        type=click.Path(path_type=Path, exists=True, dir_okay=False),
+        help="VCR-Net weights (.safetensors); default: the shipped weights/vcr-default.safetensors.",
+    )(function)
+
+
+def method_options(method: str, weights: Path | None, device: str) -> dict[str, Any]:
+    return {"weights": weights, "device": device} if method == "vcr" else {}

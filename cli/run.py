@@ -10,8 +10,10 @@ from vcr_odom.cli.options import (
     FrameSelection,
     describe_methods,
     initial_guess_option,
+    method_options,
     results_option,
     sequence_options,
+    vcr_options,
 )
 from vcr_odom.cli.progress import console, frame_progress
 from vcr_odom.cli.tables import report_table
@@ -33,12 +35,20 @@ DEFAULT_METHOD = "kiss-icp"
     help="Registration method (see the list below).",
 )
 @initial_guess_option
+@vcr_options
 @results_option
-def run(selection: FrameSelection, method: str, initial_guess: str, results_dir: Path) -> None:
+def run(
+    selection: FrameSelection,
+    method: str,
+    initial_guess: str,
+    weights: Path | None,
+    device: str,
+    results_dir: Path,
+) -> None:
     """Estimate the trajectory of a sequence and write it (KITTI + TUM), metrics and a plot."""
     sequence = selection.open()
     indices = selection.indices(sequence)
-    odometry = build_odometry(method, InitialGuess(initial_guess))
+    odometry = build_odometry(method, InitialGuess(initial_guess), **method_options(method, weights, device))
     out = create_result_folder(results_dir, f"run_{sequence.name}_{method}")
     config = {
         "command": "run",
@@ -46,6 +56,8 @@ def run(selection: FrameSelection, method: str, initial_guess: str, results_dir:
         **selection.as_config(),
         "method": method,
         "initial_guess": initial_guess,
+        "weights": weights,
+        "device": device,
     }
     write_json(out / "config.json", provenance(config))
     with frame_progress(f"{method} on {sequence.name}", len(indices)) as advance:

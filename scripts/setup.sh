@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Set up a local virtual environment for vcr-odom on a fresh Debian/Ubuntu machine.
 # Idempotent: a second call only re-checks the system library and re-installs when pyproject.toml changed.
-#   PYTHON      interpreter to build the venv from (default python3, needs >= 3.10)
+#   PYTHON      interpreter to build the venv from (default python3, needs >= 3.11)
 #   VENV        venv folder (default .venv)
 #   TORCH_SPEC  torch requirement installed first (default torch==2.13.0, a CPU build on this team's
 #               machines; e.g. TORCH_SPEC="torch==2.13.0 --index-url https://download.pytorch.org/whl/cpu")
@@ -32,9 +32,9 @@ ensure_libusb() {
 }
 
 ensure_python() {
-    command -v "$PYTHON" >/dev/null 2>&1 || die "'$PYTHON' not found; set PYTHON to a Python >= 3.10"
-    "$PYTHON" -c 'import sys; sys.exit(sys.version_info < (3, 10))' \
-        || die "$("$PYTHON" --version 2>&1) is too old; vcr-odom needs Python >= 3.10 (set PYTHON=...)"
+    command -v "$PYTHON" >/dev/null 2>&1 || die "'$PYTHON' not found; set PYTHON to a Python >= 3.11"
+    "$PYTHON" -c 'import sys; sys.exit(sys.version_info < (3, 11))' \
+        || die "$("$PYTHON" --version 2>&1) is too old; vcr-odom needs Python >= 3.11 (set PYTHON=...)"
     "$PYTHON" -c 'import venv, ensurepip' 2>/dev/null \
         || die "'$PYTHON' has no venv/ensurepip module (Debian/Ubuntu: sudo apt-get install python3-venv)"
 }

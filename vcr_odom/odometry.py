@@ -9,7 +9,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from enum import Enum
+from enum import StrEnum
 from typing import Any
 
 import numpy as np
@@ -21,7 +21,7 @@ from vcr_odom.geometry import Transform
 from vcr_odom.registration.base import Registrar, SequentialOdometry
 
 
-class InitialGuess(str, Enum):
+class InitialGuess(StrEnum):
     """Where a local method starts: the identity (the paper's ICP baseline) or the last motion."""
 
     IDENTITY = "identity"

@@ -39,7 +39,7 @@ from typing import TYPE_CHECKING, Any, TypedDict
 import numpy as np
 import torch
 from numpy.typing import NDArray
-from torch.utils.data import Dataset
+from torch.utils.data import ConcatDataset, Dataset
 
 from vcr_odom.errors import ConfigError, DataError
 from vcr_odom.geometry import invert, make_transform, rotation_from_euler_zyx
@@ -512,3 +512,25 @@ __all__ = [
     "random_rigid_transform",
     "split_frames",
 ]
+
+
+class PairDatasets(ConcatDataset):
+    """Several sequences' pair datasets as one, forwarding ``set_epoch`` (torch's ConcatDataset does not)."""
+
+    def set_epoch(self, epoch: int) -> None:
+        for dataset in self.datasets:
+            dataset.set_epoch(epoch)
+
+
+def train_val_datasets(
+    caches: Sequence[FrameCache], config: PairConfig, val_fraction: float = 0.2
+) -> tuple[PairDatasets, PairDatasets]:
+    """Training and validation pairs from each cache's own contiguous frame blocks (:func:`split_frames`),
+    so no validation pair shares a frame with a training pair."""
+    train_sets, val_sets = [], []
+    for cache in caches:
+        train_rows, val_rows = split_frames(len(cache.frame_indices), val_fraction)
+        rows_to_frames = np.asarray(cache.frame_indices)
+        train_sets.append(PairDataset(cache, config, frames=rows_to_frames[train_rows].tolist()))
+        val_sets.append(PairDataset(cache, config, frames=rows_to_frames[val_rows].tolist()))
+    return PairDatasets(train_sets), PairDatasets(val_sets)

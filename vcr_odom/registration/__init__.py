@@ -24,6 +24,7 @@ METHOD_NAMES: dict[str, str] = {
     "icp-p2p": "open3d point-to-point ICP, run to convergence; needs an initial guess",
     "fpfh": "open3d FPFH features + RANSAC global registration; no initial guess",
     "kiss-icp": "kiss-icp's own odometry pipeline (local map, adaptive threshold, constant velocity)",
+    "vcr": "VCR-Net, learned global registration (no initial guess); needs trained weights",
 }
 """Method name -> one-line description (for ``--help`` and error messages)."""
 
@@ -44,6 +45,10 @@ def _method_class(key: str) -> type:
         from vcr_odom.registration.fpfh import FpfhRansac
 
         return FpfhRansac
+    if key == "vcr":
+        from vcr_odom.registration.vcr import VcrRegistrar
+
+        return VcrRegistrar
     from vcr_odom.registration.kiss import KissIcpOdometry
 
     return KissIcpOdometry

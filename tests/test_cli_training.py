@@ -1,0 +1,70 @@
+"""Training commands end to end on a tiny synthetic sequence: cache -> train -> resume -> run with VCR."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+from vcr_odom.cli.main import cli
+from vcr_odom.data.synth import generate_sequence
+
+
+@pytest.fixture(scope="module")
+def synthetic_root(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("synthetic-train")
+    generate_sequence(root, seq="00", frames=12, seed=4)
+    return root
+
+
+def invoke(*args: object) -> str:
+    result = CliRunner().invoke(cli, [str(a) for a in args], catch_exceptions=False)
+    assert result.exit_code == 0, result.output
+    return result.stdout
+
+
+def test_cache_train_resume_and_run_with_the_trained_weights(synthetic_root, tmp_path):
+    cache = tmp_path / "seq00.npz"
+    invoke("cache", "--data-root", synthetic_root, "--seq", "00", "--out", cache)
+    assert cache.is_file()
+
+    common = ["train", "--cache", cache, "--batch-size", "4", "--device", "cpu", "--out", tmp_path / "run"]
+    invoke(*common, "--epochs", "1")
+    history = json.loads((tmp_path / "run" / "history.json").read_text())
+    assert len(history) == 1
+    output = invoke(*common, "--epochs", "2", "--resume")
+    assert "best epoch" in output
+    history = json.loads((tmp_path / "run" / "history.json").read_text())
+    assert [entry["epoch"] for entry in history] == [0, 1]
+
+    weights = tmp_path / "run" / "best.safetensors"
+    invoke(
+        "run",
+        "--data-root",
+        synthetic_root,
+        "--method",
+        "vcr",
+        "--weights",
+        weights,
+        "--device",
+        "cpu",
+        "--frames",
+        ":4",
+        "--results-dir",
+        tmp_path / "results",
+    )
+    metrics = json.loads((tmp_path / "results" / "latest" / "metrics.json").read_text())
+    assert metrics["run"]["method"] == "vcr" and metrics["run"]["frames_processed"] == 4
+
+
+def test_vcr_without_weights_names_the_missing_file(synthetic_root, tmp_path, monkeypatch):
+    import vcr_odom.model.weights as weights_module
+
+    monkeypatch.setattr(weights_module, "WEIGHTS_DIR", tmp_path / "no-weights")
+    result = CliRunner().invoke(
+        cli, ["run", "--data-root", str(synthetic_root), "--method", "vcr", "--results-dir", str(tmp_path)]
+    )
+    assert result.exit_code != 0
+    assert "vcr-default.safetensors" in result.output and "vcr-odom train" in result.output
