@@ -7,22 +7,11 @@ from pathlib import Path
 import pytest
 import torch
 from safetensors.torch import save_file
+from test_train import TINY
 
 from vcr_odom.errors import DataError
-from vcr_odom.model import VcrConfig, VCRNet
+from vcr_odom.model import VCRNet
 from vcr_odom.model.weights import default_weights_path, load_weights, save_weights
-
-TINY = VcrConfig(
-    num_points=64,
-    k=8,
-    point_dim=16,
-    graph_dim=16,
-    spatial_dim=16,
-    feature_dim=32,
-    heads=2,
-    ff_dim=32,
-    top_j=4,
-)
 
 
 @pytest.fixture()
