@@ -22,6 +22,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from vcr_odom.errors import ConfigError, DataError
 from vcr_odom.geometry import euler_zyx, project_to_se3, rotation_angle
+from vcr_odom.jsonsafe import json_safe
 
 #: The devkit's segment lengths (m): the KITTI odometry benchmark's definition.
 KITTI_SEGMENT_LENGTHS_M: tuple[float, ...] = (100.0, 200.0, 300.0, 400.0, 500.0, 600.0, 700.0, 800.0)
@@ -90,23 +91,6 @@ def _relative(pose_a: NDArray[np.float64], pose_b: NDArray[np.float64]) -> NDArr
     return np.linalg.solve(pose_a, pose_b)
 
 
-def _json_float(value: Any) -> Any:
-    """Plain Python numbers for JSON; NaN/inf (a figure that does not exist) become None."""
-    if isinstance(value, dict):
-        return {key: _json_float(item) for key, item in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_json_float(item) for item in value]
-    if isinstance(value, np.ndarray):
-        return _json_float(value.tolist())
-    if isinstance(value, (bool, np.bool_)):
-        return bool(value)
-    if isinstance(value, (int, np.integer)):
-        return int(value)
-    if isinstance(value, (float, np.floating)):
-        return float(value) if math.isfinite(value) else None
-    return value
-
-
 # ------------------------------------------------------------------------------------------ KITTI drift
 
 
@@ -163,7 +147,7 @@ class DriftResult:
     per_length: list[DriftAtLength] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
-        return _json_float(asdict(self))
+        return json_safe(asdict(self))
 
 
 def kitti_drift(
@@ -275,7 +259,7 @@ class EndpointDrift:
     path_length_m: float
 
     def to_dict(self) -> dict[str, Any]:
-        return _json_float(asdict(self))
+        return json_safe(asdict(self))
 
 
 def endpoint_drift(est: ArrayLike, gt: ArrayLike) -> EndpointDrift:
@@ -364,7 +348,7 @@ class PairErrors:
         result["dcp"] = asdict(self.dcp)
         if include_arrays:
             result.update({key: getattr(self, key) for key in self._ARRAYS})
-        return _json_float(result)
+        return json_safe(result)
 
 
 def pair_errors(
@@ -462,7 +446,7 @@ class AteRpe:
     rpe_rot_rmse_deg: float
 
     def to_dict(self) -> dict[str, Any]:
-        return _json_float(asdict(self))
+        return json_safe(asdict(self))
 
 
 def ate_rpe(
@@ -542,7 +526,7 @@ class EvaluationReport:
         """JSON-safe nested dict (units in the key names; figures that do not exist are None)."""
         return {
             "num_poses": int(self.num_poses),
-            "path_length_m": _json_float(self.path_length_m),
+            "path_length_m": json_safe(self.path_length_m),
             "drift": self.drift.to_dict(),
             "endpoint_drift": self.endpoint.to_dict(),
             "pairs": self.pairs.to_dict(include_arrays=include_arrays),

@@ -15,9 +15,8 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from vcr_odom.io import atomic_write_text
+from vcr_odom.jsonsafe import json_safe
 
 TRACKED_DISTRIBUTIONS = (
     "vcr-odom",
@@ -106,18 +105,4 @@ def provenance(config: dict[str, Any]) -> dict[str, Any]:
 
 
 def write_json(path: str | os.PathLike[str], payload: Any) -> Path:
-    return atomic_write_text(path, json.dumps(_jsonable(payload), indent=2, allow_nan=True) + "\n")
-
-
-def _jsonable(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return _jsonable(value.tolist())
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, Path):
-        return str(value)
-    return value
+    return atomic_write_text(path, json.dumps(json_safe(payload), indent=2, allow_nan=False) + "\n")
