@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import click
 
@@ -10,8 +11,10 @@ from vcr_odom.cli.options import (
     FrameSelection,
     describe_methods,
     initial_guess_option,
+    method_options,
     results_option,
     sequence_options,
+    vcr_options,
 )
 from vcr_odom.cli.progress import console, frame_progress
 from vcr_odom.cli.tables import ComparisonRow, comparison_table
@@ -34,17 +37,28 @@ DEFAULT_BASELINES = ("icp10", "icp", "fpfh", "kiss-icp")
     help=f"A method to run; repeat for several. Default: {', '.join(DEFAULT_BASELINES)}.",
 )
 @initial_guess_option
+@vcr_options
 @results_option
 def compare(
-    selection: FrameSelection, baselines: tuple[str, ...], initial_guess: str, results_dir: Path
+    selection: FrameSelection,
+    baselines: tuple[str, ...],
+    initial_guess: str,
+    weights: Path | None,
+    device: str,
+    results_dir: Path,
 ) -> None:
     """Run the methods on the same frames and print one table (per-pair errors, drift, speed)."""
     methods = list(dict.fromkeys(baselines or DEFAULT_BASELINES))
-    compare_sequence(selection, methods, initial_guess, results_dir)
+    options = {"vcr": method_options("vcr", weights, device)}
+    compare_sequence(selection, methods, initial_guess, results_dir, options)
 
 
 def compare_sequence(
-    selection: FrameSelection, methods: list[str], initial_guess: str, results_dir: Path
+    selection: FrameSelection,
+    methods: list[str],
+    initial_guess: str,
+    results_dir: Path,
+    options: dict[str, dict[str, Any]] | None = None,
 ) -> list[MethodOutcome]:
     """Shared by ``compare`` and ``demo``: run, print the table, say where the files are."""
     sequence = selection.open()
@@ -56,10 +70,17 @@ def compare_sequence(
         **selection.as_config(),
         "methods": methods,
         "initial_guess": initial_guess,
+        "method_options": options or {},
     }
     write_json(out / "config.json", provenance(config))
     outcomes = compare_methods(
-        sequence, methods, indices, out, initial_guess=InitialGuess(initial_guess), progress=frame_progress
+        sequence,
+        methods,
+        indices,
+        out,
+        initial_guess=InitialGuess(initial_guess),
+        progress=frame_progress,
+        options=options,
     )
     rows = [
         ComparisonRow(o.method, o.needs_initial_guess, o.report, o.run.frames_per_second, o.run.interrupted)

@@ -58,6 +58,26 @@ def test_cache_train_resume_and_run_with_the_trained_weights(synthetic_root, tmp
     metrics = json.loads((tmp_path / "results" / "latest" / "metrics.json").read_text())
     assert metrics["run"]["method"] == "vcr" and metrics["run"]["frames_processed"] == 4
 
+    output = invoke(
+        "compare",
+        "--data-root",
+        synthetic_root,
+        "-b",
+        "vcr",
+        "-b",
+        "icp10",
+        "--weights",
+        weights,
+        "--device",
+        "cpu",
+        "--frames",
+        ":4",
+        "--results-dir",
+        tmp_path / "compare",
+    )
+    assert "none (global)" in output  # vcr needs no initial guess, and the table says so
+    assert set(json.loads((tmp_path / "compare" / "latest" / "compare.json").read_text())) == {"vcr", "icp10"}
+
 
 def test_vcr_without_weights_names_the_missing_file(synthetic_root, tmp_path, monkeypatch):
     import vcr_odom.model.weights as weights_module

@@ -124,7 +124,9 @@ def test_factory_builds_every_method_and_names_valid_ones() -> None:
     assert make_method("icp10").max_iterations == 10
     assert make_method("icp-p2p").variant == "point_to_point"
     assert make_method("icp", voxel_size=1.0).voxel_size == 1.0
-    with pytest.raises(ConfigError, match="valid methods: icp10, icp, icp-p2p10, icp-p2p, fpfh, kiss-icp, vcr"):
+    with pytest.raises(
+        ConfigError, match="valid methods: icp10, icp, icp-p2p10, icp-p2p, fpfh, kiss-icp, vcr"
+    ):
         make_method("ndt")
     with pytest.raises(ConfigError, match=r"unknown option.*voxel"):
         make_method("fpfh", voxel=0.3)

@@ -5,7 +5,7 @@ The CLI only parses options and prints; everything a notebook user would call li
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass
 from pathlib import Path
@@ -170,14 +170,16 @@ def compare_methods(
     *,
     initial_guess: InitialGuess = InitialGuess.CONSTANT_VELOCITY,
     progress: ProgressFactory | None = None,
+    options: Mapping[str, Mapping[str, Any]] | None = None,
 ) -> list[MethodOutcome]:
     """Run each method on the same frames (one sub-folder each) and overlay their trajectories.
 
     Ctrl-C stops the method in progress and skips the rest; what finished is kept and plotted.
+    ``options`` maps a method name to its constructor options (e.g. ``{"vcr": {"weights": path}}``).
     """
     outcomes: list[MethodOutcome] = []
     for name in method_names:
-        odometry = build_odometry(name, initial_guess)
+        odometry = build_odometry(name, initial_guess, **(options or {}).get(name, {}))
         registrar = getattr(odometry, "registrar", None)
         needs_guess = bool(getattr(registrar, "needs_initial_guess", True))
         with progress(name, len(frame_indices)) if progress else nullcontext(None) as advance:
