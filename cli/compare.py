@@ -83,7 +83,14 @@ def compare_sequence(
         options=options,
     )
     rows = [
-        ComparisonRow(o.method, o.needs_initial_guess, o.report, o.run.frames_per_second, o.run.interrupted)
+        ComparisonRow(
+            o.method,
+            o.needs_initial_guess,
+            o.report,
+            o.run.frames_per_second,
+            o.run.interrupted,
+            len(o.run.flagged_frames),
+        )
         for o in outcomes
     ]
     span = f"frames {indices[0]}..{indices[-1]}, stride {selection.stride}, {len(indices)} frames"

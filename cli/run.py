@@ -64,6 +64,11 @@ def run(
         result, report = run_and_save(sequence, odometry, indices, out, progress=advance)
     if result.interrupted:
         console.print(f"[yellow]Interrupted after {len(result.frame_indices)} frames; partial results kept.")
+    if result.flagged_frames:
+        console.print(
+            f"[yellow]{len(result.flagged_frames)} frame(s) flagged (implausible motion replaced by the "
+            f"previous one): {result.flagged_frames[:20]}; reasons in metrics.json"
+        )
     if report is not None:
         console.print(report_table(report, title=f"{method} on {sequence.name} (stride {selection.stride})"))
     else:

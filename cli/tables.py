@@ -66,6 +66,7 @@ class ComparisonRow:
     report: EvaluationReport | None
     frames_per_second: float
     interrupted: bool = False
+    flagged: int = 0
 
 
 def comparison_table(rows: Sequence[ComparisonRow], title: str) -> Table:
@@ -81,6 +82,7 @@ def comparison_table(rows: Sequence[ComparisonRow], title: str) -> Table:
         "r_rel [deg/100m]",
         "end-point [%]",
         "ATE [m]",
+        "flagged",
         "fps",
     )
     for header in headers:
@@ -89,7 +91,7 @@ def comparison_table(rows: Sequence[ComparisonRow], title: str) -> Table:
         prior = "init guess" if row.needs_initial_guess else "none (global)"
         name = row.method + (" (interrupted)" if row.interrupted else "")
         if row.report is None:
-            table.add_row(name, prior, *["–"] * 7, _f(row.frames_per_second, 1))
+            table.add_row(name, prior, *["–"] * 7, str(row.flagged), _f(row.frames_per_second, 1))
             continue
         pairs, drift = row.report.pairs, row.report.drift
         table.add_row(
@@ -102,6 +104,7 @@ def comparison_table(rows: Sequence[ComparisonRow], title: str) -> Table:
             _f(drift.r_rel_deg_per_100m, 2),
             _f(row.report.endpoint.trans_error_percent, 2),
             _f(row.report.ate_rpe.ate_trans_rmse_m),
+            str(row.flagged),
             _f(row.frames_per_second, 1),
         )
     return table

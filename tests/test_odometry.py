@@ -9,7 +9,7 @@ import pytest
 
 from vcr_odom.errors import ConfigError
 from vcr_odom.geometry import make_transform, relative, rotation_from_euler_zyx
-from vcr_odom.odometry import InitialGuess, PairwiseOdometry, run_odometry, select_frames
+from vcr_odom.odometry import InitialGuess, MotionLimits, PairwiseOdometry, run_odometry, select_frames
 from vcr_odom.registration.base import RegistrationResult
 from vcr_odom.results import create_result_folder, provenance, write_json
 
@@ -135,3 +135,35 @@ def test_result_folders_are_unique_and_latest_points_at_the_newest(tmp_path):
     saved = json.loads((second / "config.json").read_text())
     assert saved["config"] == {"seed": 3, "path": str(second), "array": [0, 1, 2]}
     assert saved["git_revision"] and saved["versions"]["numpy"] == np.__version__
+
+
+class WildRegistrar(OracleRegistrar):
+    """The oracle, except that one pair comes back as a 50 m jump (a failed global registration)."""
+
+    def __init__(self, poses: np.ndarray, wild_source: int):
+        super().__init__(poses)
+        self.wild_source = wild_source
+
+    def register(self, source: int, target: int, initial_guess=None) -> RegistrationResult:
+        if source == self.wild_source:
+            return RegistrationResult(make_transform(np.eye(3), [50.0, 0.0, 0.0]))
+        return super().register(source, target, initial_guess)
+
+
+def test_an_implausible_motion_is_replaced_by_the_previous_one_and_flagged():
+    poses = np.stack([make_transform(np.eye(3), [1.0 * i, 0.0, 0.0]) for i in range(8)])
+    run = run_odometry(ToySequence(poses), PairwiseOdometry(WildRegistrar(poses, wild_source=4)), range(8))
+    assert run.flagged_frames == [4]
+    assert "moved 50.0 m in 0.10 s" in run.per_frame_info[4]["reason"]
+    # Constant velocity (1 m per frame) stands in for the failed pair: the trajectory stays exact here.
+    np.testing.assert_allclose(run.poses, poses, atol=1e-12)
+
+
+def test_motion_limits_scale_with_the_time_between_frames():
+    limits = MotionLimits(max_speed_m_s=40.0, max_turn_rate_deg_s=90.0)
+    four_metres = make_transform(np.eye(3), [4.0, 0.0, 0.0])
+    turn = make_transform(rotation_from_euler_zyx(np.radians(20.0), 0.0, 0.0), [0.0, 0.0, 0.0])
+    assert limits.violation(four_metres, 0.1) is None
+    assert "moved" in limits.violation(make_transform(np.eye(3), [5.0, 0.0, 0.0]), 0.1)
+    assert "turned" in limits.violation(turn, 0.1)
+    assert limits.violation(turn, 0.5) is None  # stride 5: the same turn over five frames is fine

@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 
 from vcr_odom.data.base import LidarSequence, Points
 from vcr_odom.errors import ConfigError
-from vcr_odom.geometry import Transform
+from vcr_odom.geometry import Transform, rotation_angle
 from vcr_odom.registration.base import Registrar, SequentialOdometry
 
 
@@ -28,16 +28,49 @@ class InitialGuess(StrEnum):
     CONSTANT_VELOCITY = "constant-velocity"
 
 
+@dataclass(frozen=True)
+class MotionLimits:
+    """What a car can do between two scans; an estimate beyond it is a failed registration.
+
+    Limits scale with the time between the frames, so strided runs (``--stride``) keep them meaningful.
+    40 m/s is 144 km/h; 90 deg/s is a sharp urban turn at speed (KITTI peaks near 30 deg/s).
+    """
+
+    max_speed_m_s: float = 40.0
+    max_turn_rate_deg_s: float = 90.0
+
+    def violation(self, motion: Transform, seconds: float) -> str | None:
+        """Why ``motion`` is implausible over ``seconds``, or None when it is plausible."""
+        seconds = max(seconds, 1e-3)
+        if not np.all(np.isfinite(motion)):
+            return "non-finite estimate"
+        distance = float(np.linalg.norm(motion[:3, 3]))
+        if distance > self.max_speed_m_s * seconds:
+            return f"moved {distance:.1f} m in {seconds:.2f} s (limit {self.max_speed_m_s:g} m/s)"
+        angle = float(np.degrees(rotation_angle(motion)))
+        if angle > self.max_turn_rate_deg_s * seconds:
+            return f"turned {angle:.1f} deg in {seconds:.2f} s (limit {self.max_turn_rate_deg_s:g} deg/s)"
+        return None
+
+
 class PairwiseOdometry:
     """Turns a pairwise :class:`Registrar` into a sequential odometry.
 
     Each frame is prepared once; its prepared form serves as the source of one pair and the target of
-    the next. ``pose[t+1] = pose[t] @ T_t_(t+1)``.
+    the next. ``pose[t+1] = pose[t] @ T_t_(t+1)``. A motion beyond ``limits`` (or a registration that
+    reports too few points) is replaced by the previous motion and flagged in ``last_info``, so one bad
+    pair never throws the trajectory across the map silently.
     """
 
-    def __init__(self, registrar: Registrar, initial_guess: InitialGuess = InitialGuess.CONSTANT_VELOCITY):
+    def __init__(
+        self,
+        registrar: Registrar,
+        initial_guess: InitialGuess = InitialGuess.CONSTANT_VELOCITY,
+        limits: MotionLimits | None = None,
+    ):
         self.registrar = registrar
         self.initial_guess = InitialGuess(initial_guess)
+        self.limits = limits or MotionLimits()
         self.name = registrar.name
         self.stage_seconds: dict[str, float] = {}
         self.last_info: dict[str, Any] = {}
@@ -47,6 +80,7 @@ class PairwiseOdometry:
         self._previous: Any = None
         self._pose: Transform = np.eye(4)
         self._last_motion: Transform = np.eye(4)
+        self._last_timestamp = 0.0
         self.stage_seconds = {"prepare": 0.0, "register": 0.0}
         self.last_info = {}
 
@@ -55,16 +89,24 @@ class PairwiseOdometry:
         prepared = self.registrar.prepare(points)
         self.stage_seconds["prepare"] += time.perf_counter() - started
         if self._previous is None:
-            self._previous = prepared
+            self._previous, self._last_timestamp = prepared, timestamp
             return self._pose.copy()
         guess = self._last_motion if self.initial_guess is InitialGuess.CONSTANT_VELOCITY else np.eye(4)
         started = time.perf_counter()
         result = self.registrar.register(prepared, self._previous, guess)
         self.stage_seconds["register"] += time.perf_counter() - started
         self.last_info = {"fitness": result.fitness, "inlier_rmse": result.inlier_rmse, **result.info}
-        self._last_motion = np.asarray(result.transform, dtype=np.float64)
-        self._pose = self._pose @ self._last_motion
-        self._previous = prepared
+        motion = np.asarray(result.transform, dtype=np.float64)
+        problem = self.limits.violation(motion, timestamp - self._last_timestamp)
+        if problem is None and result.info.get("status") == "too few points":
+            problem = "too few points to register"
+        if problem is not None:
+            # Fall back to the previous motion (constant velocity): a better guess than any wild jump.
+            self.last_info |= {"flagged": True, "reason": problem}
+            motion = self._last_motion
+        self._last_motion = motion
+        self._pose = self._pose @ motion
+        self._previous, self._last_timestamp = prepared, timestamp
         return self._pose.copy()
 
 
@@ -80,6 +122,13 @@ class OdometryRun:
     wall_seconds: float
     interrupted: bool = False
     per_frame_info: list[dict[str, Any]] = field(default_factory=list)
+
+    @property
+    def flagged_frames(self) -> list[int]:
+        """Frames whose motion estimate was implausible and replaced (see :class:`MotionLimits`)."""
+        return [
+            i for i, info in zip(self.frame_indices, self.per_frame_info, strict=False) if info.get("flagged")
+        ]
 
     @property
     def frames_per_second(self) -> float:

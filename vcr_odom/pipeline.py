@@ -143,6 +143,12 @@ def run_summary(run: OdometryRun) -> dict[str, Any]:
         "first_frame": run.frame_indices[0] if run.frame_indices else None,
         "last_frame": run.frame_indices[-1] if run.frame_indices else None,
         "interrupted": run.interrupted,
+        "flagged_frames": run.flagged_frames,
+        "flagged_reasons": {
+            index: info["reason"]
+            for index, info in zip(run.frame_indices, run.per_frame_info, strict=False)
+            if info.get("flagged")
+        },
         "wall_seconds": run.wall_seconds,
         "frames_per_second": run.frames_per_second,
         "stage_seconds": run.stage_seconds,
