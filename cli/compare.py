@@ -1,4 +1,4 @@
-"""``vcr-odom compare``: several methods on the same frames, side by side."""
+"""``vcr-odom compare``: several methods on the same frames, side by side (odometry and/or the paper's pairs)."""
 
 from __future__ import annotations
 
@@ -17,8 +17,10 @@ from vcr_odom.cli.options import (
     vcr_options,
 )
 from vcr_odom.cli.progress import console, frame_progress
-from vcr_odom.cli.tables import ComparisonRow, comparison_table
+from vcr_odom.cli.tables import ComparisonRow, comparison_table, pair_protocol_table
+from vcr_odom.data.base import LidarSequence
 from vcr_odom.odometry import InitialGuess
+from vcr_odom.pair_benchmark import evaluate_pair_protocol, same_scan_pairs
 from vcr_odom.pipeline import MethodOutcome, compare_methods
 from vcr_odom.registration import METHOD_NAMES
 from vcr_odom.results import create_result_folder, provenance, write_json
@@ -36,31 +38,55 @@ DEFAULT_BASELINES = ("icp10", "icp", "fpfh", "kiss-icp")
     multiple=True,
     help=f"A method to run; repeat for several. Default: {', '.join(DEFAULT_BASELINES)}.",
 )
+@click.option(
+    "--protocol",
+    type=click.Choice(["odometry", "pairs", "both"]),
+    default="odometry",
+    show_default=True,
+    help="odometry: chain the frames; pairs: the paper's Table III (each scan against an independently "
+    "down-sampled copy of itself moved by yaw ±30°, tilt ±5°, ±5 m, ±1 m; local methods from identity).",
+)
+@click.option(
+    "--pair-points",
+    type=click.IntRange(min=64),
+    default=1024,
+    show_default=True,
+    help="Points per cloud in the pairs protocol (the paper: 1024).",
+)
+@click.option(
+    "--seed", type=int, default=0, show_default=True, help="Seed of the pairs protocol's transforms."
+)
 @initial_guess_option
 @vcr_options
 @results_option
 def compare(
     selection: FrameSelection,
     baselines: tuple[str, ...],
+    protocol: str,
+    pair_points: int,
+    seed: int,
     initial_guess: str,
     weights: Path | None,
     device: str,
     results_dir: Path,
 ) -> None:
-    """Run the methods on the same frames and print one table (per-pair errors, drift, speed)."""
+    """Run the methods on the same frames and print one table per protocol."""
     methods = list(dict.fromkeys(baselines or DEFAULT_BASELINES))
     options = {"vcr": method_options("vcr", weights, device)}
-    compare_sequence(selection, methods, initial_guess, results_dir, options)
+    run_comparison(selection, methods, initial_guess, results_dir, options, protocol, pair_points, seed)
 
 
-def compare_sequence(
+def run_comparison(
     selection: FrameSelection,
     methods: list[str],
     initial_guess: str,
     results_dir: Path,
     options: dict[str, dict[str, Any]] | None = None,
-) -> list[MethodOutcome]:
-    """Shared by ``compare`` and ``demo``: run, print the table, say where the files are."""
+    protocol: str = "odometry",
+    pair_points: int = 1024,
+    seed: int = 0,
+) -> None:
+    """Shared by ``compare`` and ``demo``: one result folder, one table per protocol."""
     sequence = selection.open()
     indices = selection.indices(sequence)
     out = create_result_folder(results_dir, f"compare_{sequence.name}_stride{selection.stride}")
@@ -69,10 +95,29 @@ def compare_sequence(
         "sequence": sequence.name,
         **selection.as_config(),
         "methods": methods,
+        "protocol": protocol,
+        "pair_points": pair_points,
+        "seed": seed,
         "initial_guess": initial_guess,
         "method_options": options or {},
     }
     write_json(out / "config.json", provenance(config))
+    if protocol in ("odometry", "both"):
+        compare_odometry(sequence, indices, selection.stride, methods, initial_guess, out, options)
+    if protocol in ("pairs", "both"):
+        compare_pairs(sequence, indices, methods, out, options, pair_points, seed)
+    console.print(f"Results in {out}")
+
+
+def compare_odometry(
+    sequence: LidarSequence,
+    indices: list[int],
+    stride: int,
+    methods: list[str],
+    initial_guess: str,
+    out: Path,
+    options: dict[str, dict[str, Any]] | None,
+) -> list[MethodOutcome]:
     outcomes = compare_methods(
         sequence,
         methods,
@@ -93,9 +138,29 @@ def compare_sequence(
         )
         for o in outcomes
     ]
-    span = f"frames {indices[0]}..{indices[-1]}, stride {selection.stride}, {len(indices)} frames"
-    console.print(comparison_table(rows, title=f"{sequence.name}: {span}"))
+    span = f"frames {indices[0]}..{indices[-1]}, stride {stride}, {len(indices)} frames"
+    console.print(comparison_table(rows, title=f"{sequence.name} odometry: {span}"))
     if outcomes and outcomes[0].report is not None and outcomes[0].report.drift.short_sequence:
-        console.print(f"[dim]drift column: {outcomes[0].report.drift.label}")
-    console.print(f"Per-method folders, compare.json and trajectories.png in {out}")
+        console.print(f"[dim]drift columns: {outcomes[0].report.drift.label}")
     return outcomes
+
+
+def compare_pairs(
+    sequence: LidarSequence,
+    indices: list[int],
+    methods: list[str],
+    out: Path,
+    options: dict[str, dict[str, Any]] | None,
+    pair_points: int,
+    seed: int,
+) -> None:
+    pairwise = [m for m in methods if m != "kiss-icp"]
+    if len(pairwise) < len(methods):
+        console.print("[dim]kiss-icp is left out of the pairs protocol: it is a sequential odometry.")
+    with frame_progress(f"building pairs ({pair_points} points)", len(indices)) as advance:
+        pairs = same_scan_pairs(sequence, indices, pair_points, seed, progress=lambda *_: advance())
+    with frame_progress("registering pairs", len(pairs) * len(pairwise)) as advance:
+        results = evaluate_pair_protocol(pairwise, pairs, options=options, progress=lambda *_: advance())
+    write_json(out / "pairs.json", {name: result.to_dict() for name, result in results.items()})
+    title = f"{sequence.name} pairs protocol (paper Table III): {len(pairs)} pairs of {pair_points} points"
+    console.print(pair_protocol_table(results, title))

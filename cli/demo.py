@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from vcr_odom.cli.compare import compare_sequence
+from vcr_odom.cli.compare import run_comparison
 from vcr_odom.cli.options import FrameSelection
 from vcr_odom.cli.progress import console
 from vcr_odom.data.synth import generate_sequence
@@ -42,4 +42,4 @@ def demo(frames: int, seed: int, results_dir: Path) -> None:
     console.print(f"Generating {frames} synthetic frames (seed {seed}) in {data_root} ...")
     generate_sequence(data_root, seq="00", frames=frames, seed=seed)
     selection = FrameSelection(data_root, "00", folder=None, poses=None, calib=None, frames=None, stride=1)
-    compare_sequence(selection, DEMO_METHODS, "constant-velocity", results_dir)
+    run_comparison(selection, DEMO_METHODS, "constant-velocity", results_dir)

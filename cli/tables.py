@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 from rich.markup import escape
 from rich.table import Table
 
 from vcr_odom.metrics import EvaluationReport
+from vcr_odom.pair_benchmark import PairProtocolResult
 
 
 def _f(value: float, digits: int = 3) -> str:
@@ -106,5 +107,23 @@ def comparison_table(rows: Sequence[ComparisonRow], title: str) -> Table:
             _f(row.report.ate_rpe.ate_trans_rmse_m),
             str(row.flagged),
             _f(row.frames_per_second, 1),
+        )
+    return table
+
+
+def pair_protocol_table(results: Mapping[str, PairProtocolResult], title: str) -> Table:
+    """The paper's Table III layout: one row per method on the same randomly moved pairs."""
+    table = Table(title=title, header_style="bold")
+    headers = ("method", "rot RMSE / MAE [deg]", "trans RMSE / MAE [m]", "success", "ms / pair")
+    for header in headers:
+        table.add_column(escape(header), justify="left" if header == "method" else "right")
+    for name, result in results.items():
+        errors = result.errors
+        table.add_row(
+            name,
+            f"{_f(errors.rot_rmse_deg)} / {_f(errors.rot_mae_deg)}",
+            f"{_f(errors.trans_rmse_m)} / {_f(errors.trans_mae_m)}",
+            f"{100 * errors.success_rate:.0f} %",
+            _f(result.ms_per_pair_mean, 1),
         )
     return table

@@ -175,3 +175,29 @@ def test_bad_input_is_one_clear_error(synthetic_root, tmp_path, args, message):
     assert result.exit_code != 0
     assert message in result.output
     assert "Traceback" not in result.output
+
+
+def test_compare_both_protocols_prints_the_pairs_table_without_kiss_icp(synthetic_root, tmp_path):
+    output = invoke(
+        "compare",
+        "--data-root",
+        str(synthetic_root),
+        "--protocol",
+        "both",
+        "-b",
+        "icp10",
+        "-b",
+        "fpfh",
+        "-b",
+        "kiss-icp",
+        "--frames",
+        ":4",
+        "--results-dir",
+        str(tmp_path),
+    )
+    assert "odometry" in output and "pairs protocol (paper Table III): 4 pairs of 1024 points" in output
+    assert "kiss-icp is left out of the pairs protocol" in output
+    pairs = json.loads(((tmp_path / "latest").resolve() / "pairs.json").read_text())
+    assert set(pairs) == {"icp10", "fpfh"}
+    # The random ±30° / ±5 m moves are what a global method recovers and ICP from identity does not.
+    assert pairs["fpfh"]["errors"]["success_rate"] > pairs["icp10"]["errors"]["success_rate"]
