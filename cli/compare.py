@@ -19,13 +19,22 @@ from vcr_odom.cli.options import (
 from vcr_odom.cli.progress import console, frame_progress
 from vcr_odom.cli.tables import ComparisonRow, comparison_table, pair_protocol_table
 from vcr_odom.data.base import LidarSequence
+from vcr_odom.errors import ConfigError
 from vcr_odom.odometry import InitialGuess
 from vcr_odom.pair_benchmark import evaluate_pair_protocol, same_scan_pairs
-from vcr_odom.pipeline import MethodOutcome, compare_methods
-from vcr_odom.registration import METHOD_NAMES
+from vcr_odom.pipeline import MethodOutcome, compare_methods, parse_method_spec
 from vcr_odom.results import create_result_folder, provenance, write_json
 
 DEFAULT_BASELINES = ("icp10", "icp", "fpfh", "kiss-icp")
+
+
+def _check_specs(ctx: click.Context, param: click.Parameter, specs: tuple[str, ...]) -> tuple[str, ...]:
+    for spec in specs:
+        try:
+            parse_method_spec(spec)
+        except ConfigError as error:
+            raise click.BadParameter(str(error), ctx=ctx, param=param) from error
+    return specs
 
 
 @click.command("compare", epilog=describe_methods())
@@ -34,9 +43,10 @@ DEFAULT_BASELINES = ("icp10", "icp", "fpfh", "kiss-icp")
     "--baseline",
     "-b",
     "baselines",
-    type=click.Choice(list(METHOD_NAMES)),
     multiple=True,
-    help=f"A method to run; repeat for several. Default: {', '.join(DEFAULT_BASELINES)}.",
+    callback=_check_specs,
+    help="A method, optionally with a polish (e.g. fpfh+icp, vcr+kiss-icp); repeat for several. "
+    f"Default: {', '.join(DEFAULT_BASELINES)}.",
 )
 @click.option(
     "--protocol",
@@ -72,7 +82,7 @@ def compare(
 ) -> None:
     """Run the methods on the same frames and print one table per protocol."""
     methods = list(dict.fromkeys(baselines or DEFAULT_BASELINES))
-    options = {"vcr": method_options("vcr", weights, device)}
+    options = {spec: method_options(parse_method_spec(spec)[0], weights, device) for spec in methods}
     run_comparison(selection, methods, initial_guess, results_dir, options, protocol, pair_points, seed)
 
 
@@ -154,9 +164,13 @@ def compare_pairs(
     pair_points: int,
     seed: int,
 ) -> None:
-    pairwise = [m for m in methods if m != "kiss-icp"]
+    pairwise = [m for m in methods if m != "kiss-icp" and "+" not in m]
     if len(pairwise) < len(methods):
-        console.print("[dim]kiss-icp is left out of the pairs protocol: it is a sequential odometry.")
+        left_out = ", ".join(m for m in methods if m not in pairwise)
+        console.print(
+            f"[dim]left out of the pairs protocol: {left_out} (kiss-icp is a sequential odometry; "
+            "polished rows exist only in the odometry table so far)."
+        )
     with frame_progress(f"building pairs ({pair_points} points)", len(indices)) as advance:
         pairs = same_scan_pairs(sequence, indices, pair_points, seed, progress=lambda *_: advance())
     with frame_progress("registering pairs", len(pairs) * len(pairwise)) as advance:

@@ -123,10 +123,17 @@ def initial_guess_option(function: F) -> F:
 
 def describe_methods() -> str:
     """The method list for a command's epilog (click keeps \\b blocks unwrapped)."""
+    from vcr_odom.refine import REFINE_CHOICES
     from vcr_odom.registration import METHOD_NAMES
 
     lines = [f"  {name:<10} {text}" for name, text in METHOD_NAMES.items()]
-    return "\b\nMethods:\n" + "\n".join(lines)
+    polish = [f"  +{name:<9} {text}" for name, text in REFINE_CHOICES.items() if name != "none"]
+    return (
+        "\b\nMethods:\n"
+        + "\n".join(lines)
+        + "\n\b\nPolish of a pairwise method (compare: NAME+POLISH):\n"
+        + "\n".join(polish)
+    )
 
 
 def vcr_options(function: F) -> F:

@@ -19,6 +19,7 @@ from vcr_odom.cli.progress import console, frame_progress
 from vcr_odom.cli.tables import report_table
 from vcr_odom.odometry import InitialGuess
 from vcr_odom.pipeline import build_odometry, run_and_save
+from vcr_odom.refine import REFINE_CHOICES
 from vcr_odom.registration import METHOD_NAMES
 from vcr_odom.results import create_result_folder, provenance, write_json
 
@@ -34,12 +35,20 @@ DEFAULT_METHOD = "kiss-icp"
     show_default=True,
     help="Registration method (see the list below).",
 )
+@click.option(
+    "--refine",
+    type=click.Choice(list(REFINE_CHOICES)),
+    default="none",
+    show_default=True,
+    help="Polish each pairwise estimate: open3d point-to-plane ICP, or kiss-icp against its local map.",
+)
 @initial_guess_option
 @vcr_options
 @results_option
 def run(
     selection: FrameSelection,
     method: str,
+    refine: str,
     initial_guess: str,
     weights: Path | None,
     device: str,
@@ -48,13 +57,15 @@ def run(
     """Estimate the trajectory of a sequence and write it (KITTI + TUM), metrics and a plot."""
     sequence = selection.open()
     indices = selection.indices(sequence)
-    odometry = build_odometry(method, InitialGuess(initial_guess), **method_options(method, weights, device))
-    out = create_result_folder(results_dir, f"run_{sequence.name}_{method}")
+    spec = method if refine == "none" else f"{method}+{refine}"
+    odometry = build_odometry(spec, InitialGuess(initial_guess), **method_options(method, weights, device))
+    out = create_result_folder(results_dir, f"run_{sequence.name}_{spec}")
     config = {
         "command": "run",
         "sequence": sequence.name,
         **selection.as_config(),
         "method": method,
+        "refine": refine,
         "initial_guess": initial_guess,
         "weights": weights,
         "device": device,

@@ -142,16 +142,18 @@ def test_compare_prints_every_method_and_overlays_them(synthetic_root, tmp_path)
         "icp10",
         "-b",
         "kiss-icp",
+        "-b",
+        "fpfh+icp",
         "--frames",
         ":6",
         "--results-dir",
         str(tmp_path),
     )
-    assert "icp10" in output and "kiss-icp" in output and "success" in output
+    assert "icp10" in output and "kiss-icp" in output and "fpfh+icp" in output and "success" in output
     assert "rot RMSE / MAE [deg]" in output and "r_rel [deg/100m]" in output  # units survive rich markup
     folder = (tmp_path / "latest").resolve()
     summary = json.loads((folder / "compare.json").read_text())
-    assert set(summary) == {"icp10", "kiss-icp"}
+    assert set(summary) == {"icp10", "kiss-icp", "fpfh+icp"}
     assert (folder / "trajectories.png").is_file()
     assert all((folder / method / "trajectory_kitti.txt").is_file() for method in summary)
 
@@ -196,7 +198,7 @@ def test_compare_both_protocols_prints_the_pairs_table_without_kiss_icp(syntheti
         str(tmp_path),
     )
     assert "odometry" in output and "pairs protocol (paper Table III): 4 pairs of 1024 points" in output
-    assert "kiss-icp is left out of the pairs protocol" in output
+    assert "left out of the pairs protocol: kiss-icp" in output
     pairs = json.loads(((tmp_path / "latest").resolve() / "pairs.json").read_text())
     assert set(pairs) == {"icp10", "fpfh"}
     # The random ±30° / ±5 m moves are what a global method recovers and ICP from identity does not.

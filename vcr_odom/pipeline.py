@@ -15,12 +15,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from vcr_odom.data.base import LidarSequence
+from vcr_odom.errors import ConfigError
 from vcr_odom.geometry import Transform, lidar_to_camera_poses, normalise_to_first
 from vcr_odom.io import write_kitti_poses, write_tum_trajectory
 from vcr_odom.metrics import EvaluationReport, evaluate
 from vcr_odom.odometry import InitialGuess, OdometryRun, PairwiseOdometry, run_odometry
 from vcr_odom.plots import plot_trajectories
-from vcr_odom.registration import make_method
+from vcr_odom.refine import RefinedOdometry, check_refine
+from vcr_odom.registration import METHOD_NAMES, make_method
 from vcr_odom.registration.base import Registrar, SequentialOdometry
 from vcr_odom.results import write_json
 
@@ -28,18 +30,31 @@ CHECKPOINT_EVERY_FRAMES = 50
 """How often a running trajectory is re-written, so that even a killed run leaves a usable file."""
 
 
+def parse_method_spec(spec: str) -> tuple[str, str]:
+    """``"vcr+icp"`` -> ``("vcr", "icp")``: a method name with an optional ``+<refine>`` polish."""
+    name, _, refine = spec.strip().lower().partition("+")
+    if name not in METHOD_NAMES:
+        raise ConfigError(f"unknown method {name!r} in {spec!r}; valid methods: {', '.join(METHOD_NAMES)}")
+    return name, check_refine(refine or "none")
+
+
 def build_odometry(
-    method_name: str, initial_guess: InitialGuess = InitialGuess.CONSTANT_VELOCITY, **options: Any
+    method_spec: str, initial_guess: InitialGuess = InitialGuess.CONSTANT_VELOCITY, **options: Any
 ) -> SequentialOdometry:
-    """A method by its CLI name, wrapped for the frame loop when it is pairwise."""
-    method = make_method(method_name, **options)
+    """A method by its CLI name (``name`` or ``name+refine``), wrapped for the frame loop when pairwise."""
+    name, refine = parse_method_spec(method_spec)
+    method = make_method(name, **options)
     if isinstance(method, SequentialOdometry):
+        if refine != "none":
+            raise ConfigError(
+                f"{name} is a sequential odometry with its own registration: it takes no +{refine}"
+            )
         return method
-    if isinstance(method, Registrar):
-        return PairwiseOdometry(method, initial_guess)
-    raise TypeError(
-        f"make_method({method_name!r}) returned {type(method).__name__}, not a registration method"
-    )
+    if not isinstance(method, Registrar):
+        raise TypeError(f"make_method({name!r}) returned {type(method).__name__}, not a registration method")
+    if refine != "none":
+        return RefinedOdometry(method, refine)
+    return PairwiseOdometry(method, initial_guess)
 
 
 def ground_truth_for(sequence: LidarSequence, frame_indices: Sequence[int]) -> NDArray[np.float64] | None:

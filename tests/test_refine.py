@@ -1,0 +1,90 @@
+"""RefinedOdometry: a global estimate polished by ICP or kiss-icp.
+
+The accuracy test uses FPFH+RANSAC as the global registrar (no VCR weights needed). Exact-equality
+tests use ICP as the "global" registrar instead: open3d's multi-threaded RANSAC is not reproducible
+run to run even with a fixed seed (measured: 0.2 m apart after 8 frames), so it cannot pin equality.
+"""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from vcr_odom.data import KittiSequence
+from vcr_odom.data.synth import SynthSequence
+from vcr_odom.errors import ConfigError
+from vcr_odom.geometry import normalise_to_first
+from vcr_odom.metrics import trajectory_pair_errors
+from vcr_odom.odometry import InitialGuess, PairwiseOdometry, run_odometry
+from vcr_odom.refine import REFINE_CHOICES, RefinedOdometry
+from vcr_odom.registration import SequentialOdometry, make_method
+
+
+@pytest.fixture(scope="module")
+def synth() -> SynthSequence:
+    return SynthSequence(frames=5, seed=0)
+
+
+def test_bad_refine_name_lists_the_choices() -> None:
+    with pytest.raises(ConfigError) as error:
+        RefinedOdometry(make_method("icp10"), refine="gicp")
+    for choice in REFINE_CHOICES:
+        assert choice in str(error.value)
+
+
+def test_names_and_protocol() -> None:
+    registrar = make_method("fpfh")
+    assert RefinedOdometry(registrar, "none").name == "fpfh"
+    assert RefinedOdometry(registrar, "ICP").name == "fpfh+icp"
+    method = RefinedOdometry(registrar, "kiss-icp")
+    assert method.name == "fpfh+kiss-icp"
+    assert isinstance(method, SequentialOdometry)
+
+
+def test_none_equals_plain_pairwise_odometry(synth: SynthSequence) -> None:
+    indices = list(range(len(synth)))
+    registrar = make_method("icp10")
+    refined = run_odometry(synth, RefinedOdometry(registrar, "none"), indices)
+    plain = run_odometry(synth, PairwiseOdometry(registrar, InitialGuess.IDENTITY), indices)
+    np.testing.assert_allclose(refined.poses, plain.poses, atol=1e-9)
+    assert refined.stage_seconds["method/refine"] == 0.0
+
+
+@pytest.mark.parametrize("refine", ["icp", "kiss-icp"])
+def test_reset_gives_identical_results(synth: SynthSequence, refine: str) -> None:
+    indices = list(range(len(synth)))
+    method = RefinedOdometry(make_method("icp10"), refine)
+    first = run_odometry(synth, method, indices)
+    second = run_odometry(synth, method, indices)
+    np.testing.assert_allclose(first.poses, second.poses, atol=1e-9)
+    gt = normalise_to_first(synth.gt_poses[indices])
+    errors = trajectory_pair_errors(first.poses, gt)
+    assert errors.trans_rmse_m < 0.1 and errors.rot_rmse_deg < 0.5
+    info = first.per_frame_info[-1]
+    assert {"refine_change_m", "refine_change_deg"} <= set(info)
+    assert first.stage_seconds["method/refine"] > 0.0
+
+
+def test_refine_beats_global_alone_at_stride_5(kitti_sample_root: Path) -> None:
+    """8 real frames 5 apart (~4.5 m per pair). Measured (2 CPU cores): FPFH alone ~10-11 cm / 0.33 deg
+    RMSE per pair, max ~20 cm; +icp ~4.3 cm / 0.14 deg (max 6 cm); +kiss-icp ~4.4 cm / 0.13 deg (max
+    10 cm, the first pair, registered with kiss-icp's initial 2 m threshold against a one-scan map)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # no times.txt in the sample: 10 Hz assumed
+        sequence = KittiSequence(kitti_sample_root, "00")
+    indices = list(range(0, 40, 5))
+    gt = normalise_to_first(sequence.gt_poses[indices])
+    registrar = make_method("fpfh")
+    alone = trajectory_pair_errors(run_odometry(sequence, RefinedOdometry(registrar), indices).poses, gt)
+    for refine in ("icp", "kiss-icp"):
+        run = run_odometry(sequence, RefinedOdometry(registrar, refine), indices)
+        errors = trajectory_pair_errors(run.poses, gt)
+        assert errors.trans_rmse_m < 0.07, (refine, errors.trans_rmse_m)
+        assert errors.rot_rmse_deg < 0.25, (refine, errors.rot_rmse_deg)
+        assert errors.trans_errors_m.max() < 0.15, (refine, errors.trans_errors_m.max())
+        assert errors.trans_rmse_m < 0.75 * alone.trans_rmse_m, (refine, errors.trans_rmse_m, alone)
+        assert errors.rot_rmse_deg < 0.75 * alone.rot_rmse_deg, (refine, errors.rot_rmse_deg, alone)
+        assert all("coarse_fitness" in info for info in run.per_frame_info[1:])

@@ -1,0 +1,194 @@
+"""A global registrar's relative pose, optionally polished by a local method (``--refine``).
+
+A global method (VCR-Net, FPFH+RANSAC) needs no motion prior but is only decimetre-accurate; a local
+method (ICP, kiss-icp) is centimetre-accurate but only when started near the answer. Chaining them gives
+both: the global estimate is the local method's initial guess.
+
+- ``none``: the global estimate alone (the same trajectory as :class:`~vcr_odom.odometry.PairwiseOdometry`).
+- ``icp``: open3d point-to-plane ICP between the two frames (voxel-down-sampled, ground kept), started
+  from the global estimate.
+- ``kiss-icp``: kiss-icp's own registration against its local voxel map with its adaptive threshold,
+  with ``pose[t] @ T_global`` as the initial guess in place of its constant-velocity prediction.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from typing import Any
+
+import numpy as np
+from kiss_icp.config import KISSConfig
+from kiss_icp.kiss_icp import KissICP
+
+from vcr_odom.data.base import Points
+from vcr_odom.errors import ConfigError, DataWarning
+from vcr_odom.geometry import Transform, invert, rotation_angle
+from vcr_odom.odometry import MotionLimits
+from vcr_odom.registration.base import Registrar
+from vcr_odom.registration.kiss import kiss_config
+from vcr_odom.registration.open3d_icp import Open3dIcp
+
+REFINE_CHOICES: dict[str, str] = {
+    "none": "the global registrar's estimate as it is",
+    "icp": "open3d point-to-plane ICP on the two frames, started from the global estimate",
+    "kiss-icp": "kiss-icp's adaptive-threshold registration to its local map, guessed by the global estimate",
+}
+"""``--refine`` value -> one-line description (for ``--help`` and error messages)."""
+
+
+def check_refine(refine: str) -> str:
+    """The normalised refine name; :class:`ConfigError` listing the choices otherwise."""
+    key = str(refine).strip().lower()
+    if key not in REFINE_CHOICES:
+        raise ConfigError(f"unknown refine {refine!r}; valid choices: {', '.join(REFINE_CHOICES)}")
+    return key
+
+
+class GuidedKissICP(KissICP):
+    """kiss-icp's ``register_frame`` with the initial guess supplied by the caller.
+
+    Every step is kiss-icp's own library piece, in its order: preprocess, voxelize, adaptive threshold,
+    ``align_points_to_map``, model-deviation update (so the threshold keeps adapting, here to the
+    error of the guess), map update. Only the constant-velocity prediction is replaced.
+    """
+
+    def register_frame_with_guess(self, frame: np.ndarray, initial_guess: Transform) -> Transform:
+        """Register ``frame`` (N x 3, float64) starting from ``initial_guess`` (its pose in the map)."""
+        frame = self.preprocessor.preprocess(frame, np.array([]), self.last_delta)
+        source, frame_downsample = self.voxelize(frame)
+        sigma = self.adaptive_threshold.get_threshold()
+        new_pose = self.registration.align_points_to_map(
+            points=source,
+            voxel_map=self.local_map,
+            initial_guess=initial_guess,
+            max_correspondance_distance=3 * sigma,
+            kernel=sigma,
+        )
+        model_deviation = np.linalg.inv(initial_guess) @ new_pose
+        self.adaptive_threshold.update_model_deviation(model_deviation)
+        self.local_map.update(frame_downsample, new_pose)
+        self.last_delta = np.linalg.inv(self.last_pose) @ new_pose
+        self.last_pose = new_pose
+        self.last_sigma = float(sigma)
+        self.last_source_points = len(source)
+        return np.asarray(new_pose, dtype=np.float64)
+
+
+def _difference(a: Transform, b: Transform) -> tuple[float, float]:
+    """Translation (m) and rotation (deg) between two motions: how much the polish moved the estimate."""
+    delta = invert(a) @ b
+    return float(np.linalg.norm(delta[:3, 3])), float(np.degrees(rotation_angle(delta)))
+
+
+class RefinedOdometry:
+    """A pairwise global :class:`Registrar` chained into odometry, with an optional local polish.
+
+    Each frame is prepared once by the registrar (source of one pair, target of the next) and, for
+    ``icp``, once more as the ICP cloud. ``pose[t+1] = pose[t] @ T_t_(t+1)``; with ``kiss-icp`` the
+    pose is kiss-icp's map pose, which starts from ``pose[t] @ T_coarse``.
+    An implausible coarse estimate (:class:`~vcr_odom.odometry.MotionLimits`) is replaced by the
+    previous motion before the polish, and flagged.
+    """
+
+    def __init__(
+        self,
+        registrar: Registrar,
+        refine: str = "none",
+        *,
+        icp: Open3dIcp | None = None,
+        kiss: KISSConfig | None = None,
+        limits: MotionLimits | None = None,
+    ) -> None:
+        self.registrar = registrar
+        self.limits = limits or MotionLimits()
+        self.refine = check_refine(refine)
+        self.icp = icp or Open3dIcp(variant="point_to_plane", max_iterations=100)
+        self.kiss_config = kiss or kiss_config()
+        self.name = registrar.name if self.refine == "none" else f"{registrar.name}+{self.refine}"
+        self.stage_seconds: dict[str, float] = {}
+        self.last_info: dict[str, Any] = {}
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the previous frame, the pose and (kiss-icp) the local map."""
+        self._previous: Any = None
+        self._previous_icp: Any = None
+        self._pose: Transform = np.eye(4)
+        self._last_motion: Transform = np.eye(4)
+        self._last_timestamp = 0.0
+        self._kiss = GuidedKissICP(self.kiss_config) if self.refine == "kiss-icp" else None
+        self.stage_seconds = {"prepare": 0.0, "register": 0.0, "refine": 0.0}
+        self.last_info = {}
+
+    def step(self, points: Points, timestamp: float = 0.0) -> Transform:
+        """Register the frame to the previous one, polish, and return its pose in the frame-0 LiDAR frame.
+
+        A coarse motion beyond :class:`MotionLimits` is replaced by the previous motion (the polish then
+        starts from that constant-velocity guess) and the frame is flagged in ``last_info``.
+        """
+        started = time.perf_counter()
+        prepared = self.registrar.prepare(points)
+        self.stage_seconds["prepare"] += time.perf_counter() - started
+        self.last_info = {}
+        if self._previous is None:
+            self._previous, self._last_timestamp = prepared, timestamp
+            self._start_refiner(points)
+            return self._pose.copy()
+        started = time.perf_counter()
+        result = self.registrar.register(prepared, self._previous, None)
+        self.stage_seconds["register"] += time.perf_counter() - started
+        coarse = np.asarray(result.transform, dtype=np.float64)
+        self.last_info = {"coarse_fitness": result.fitness, "coarse_inlier_rmse": result.inlier_rmse}
+        problem = self.limits.violation(coarse, timestamp - self._last_timestamp)
+        if problem is not None:
+            self.last_info |= {"flagged": True, "reason": problem}
+            coarse = self._last_motion
+        motion = coarse
+        if self.refine != "none":
+            started = time.perf_counter()
+            motion = self._refine(points, coarse)
+            self.stage_seconds["refine"] += time.perf_counter() - started
+            change_m, change_deg = _difference(coarse, motion)
+            self.last_info |= {"refine_change_m": change_m, "refine_change_deg": change_deg}
+        self._pose = self._pose @ motion
+        self._last_motion = motion
+        self._previous, self._last_timestamp = prepared, timestamp
+        return self._pose.copy()
+
+    def _start_refiner(self, points: Points) -> None:
+        """Frame 0: prepare the ICP cloud, or seed kiss-icp's map at the identity."""
+        if self.refine == "none":
+            return
+        started = time.perf_counter()
+        if self.refine == "icp":
+            self._previous_icp = self.icp.prepare(points)
+        elif self._kiss is not None:
+            self._kiss.register_frame_with_guess(_kiss_frame(points), np.eye(4))
+        self.stage_seconds["refine"] += time.perf_counter() - started
+
+    def _refine(self, points: Points, coarse: Transform) -> Transform:
+        """The polished relative motion ``T_t_(t+1)``, starting from ``coarse``."""
+        if self.refine == "icp":
+            cloud = self.icp.prepare(points)
+            result = self.icp.register(cloud, self._previous_icp, coarse)
+            self._previous_icp = cloud
+            self.last_info |= {"icp_fitness": result.fitness, "icp_inlier_rmse": result.inlier_rmse}
+            return np.asarray(result.transform, dtype=np.float64)
+        if self.refine == "kiss-icp" and self._kiss is not None:
+            new_pose = self._kiss.register_frame_with_guess(_kiss_frame(points), self._pose @ coarse)
+            self.last_info |= {
+                "kiss_sigma": self._kiss.last_sigma,
+                "kiss_source_points": self._kiss.last_source_points,
+            }
+            return invert(self._pose) @ new_pose
+        raise AssertionError(f"unhandled refine {self.refine!r}")  # check_refine admits no other value
+
+
+def _kiss_frame(points: Points) -> np.ndarray:
+    """kiss-icp's input: finite xyz as contiguous float64 (as :class:`KissIcpOdometry` feeds it)."""
+    frame = np.asarray(points, dtype=np.float64)[:, :3]
+    frame = np.ascontiguousarray(frame[np.isfinite(frame).all(axis=1)])
+    if len(frame) == 0:
+        warnings.warn("kiss-icp refine: empty frame, the global estimate is kept", DataWarning, stacklevel=3)
+    return frame
