@@ -17,6 +17,7 @@ from vcr_odom.cli.options import (
 )
 from vcr_odom.cli.progress import console, frame_progress
 from vcr_odom.cli.tables import report_table
+from vcr_odom.mapping import VoxelMap
 from vcr_odom.odometry import InitialGuess
 from vcr_odom.pipeline import build_odometry, run_and_save
 from vcr_odom.refine import REFINE_CHOICES
@@ -42,6 +43,14 @@ DEFAULT_METHOD = "kiss-icp"
     show_default=True,
     help="Polish each pairwise estimate: open3d point-to-plane ICP, or kiss-icp against its local map.",
 )
+@click.option(
+    "--save-map",
+    type=click.Path(path_type=Path, dir_okay=False),
+    help="Accumulate the registered scans into a voxel map and write it (.ply or .pcd).",
+)
+@click.option(
+    "--map-voxel", type=click.FloatRange(min=0.05), default=0.5, show_default=True, help="Map voxel size [m]."
+)
 @initial_guess_option
 @vcr_options
 @results_option
@@ -49,6 +58,8 @@ def run(
     selection: FrameSelection,
     method: str,
     refine: str,
+    save_map: Path | None,
+    map_voxel: float,
     initial_guess: str,
     weights: Path | None,
     device: str,
@@ -71,8 +82,12 @@ def run(
         "device": device,
     }
     write_json(out / "config.json", provenance(config))
-    with frame_progress(f"{method} on {sequence.name}", len(indices)) as advance:
-        result, report = run_and_save(sequence, odometry, indices, out, progress=advance)
+    with frame_progress(f"{spec} on {sequence.name}", len(indices)) as advance:
+        voxel_map = VoxelMap(voxel_size=map_voxel) if save_map else None
+        result, report = run_and_save(sequence, odometry, indices, out, progress=advance, voxel_map=voxel_map)
+    if voxel_map is not None and save_map is not None:
+        voxel_map.save(save_map)
+        console.print(f"map of {len(voxel_map)} points ({map_voxel:g} m voxels) written to {save_map}")
     if result.interrupted:
         console.print(f"[yellow]Interrupted after {len(result.frame_indices)} frames; partial results kept.")
     if result.flagged_frames:
@@ -81,7 +96,7 @@ def run(
             f"previous one): {result.flagged_frames[:20]}; reasons in metrics.json"
         )
     if report is not None:
-        console.print(report_table(report, title=f"{method} on {sequence.name} (stride {selection.stride})"))
+        console.print(report_table(report, title=f"{spec} on {sequence.name} (stride {selection.stride})"))
     else:
         console.print("No ground truth for this sequence: trajectory written without scores.")
     console.print(

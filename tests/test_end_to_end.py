@@ -203,3 +203,28 @@ def test_compare_both_protocols_prints_the_pairs_table_without_kiss_icp(syntheti
     assert set(pairs) == {"icp10", "fpfh"}
     # The random ±30° / ±5 m moves are what a global method recovers and ICP from identity does not.
     assert pairs["fpfh"]["errors"]["success_rate"] > pairs["icp10"]["errors"]["success_rate"]
+
+
+def test_run_saves_a_map_of_the_registered_scans(synthetic_root, tmp_path):
+    import open3d as o3d
+
+    map_path = tmp_path / "map.ply"
+    output = invoke(
+        "run",
+        "--data-root",
+        str(synthetic_root),
+        "--method",
+        "icp",
+        "--frames",
+        ":4",
+        "--save-map",
+        str(map_path),
+        "--results-dir",
+        str(tmp_path / "results"),
+    )
+    assert "map of" in output
+    cloud = o3d.io.read_point_cloud(str(map_path))
+    assert len(cloud.points) > 1000
+    # The map is in the frame-0 LiDAR frame: the street surrounds the start, within the sensor's reach.
+    extent = np.asarray(cloud.points).max(axis=0) - np.asarray(cloud.points).min(axis=0)
+    assert 20.0 < extent[0] < 200.0 and 20.0 < extent[1] < 200.0

@@ -165,9 +165,12 @@ def run_odometry(
     method: SequentialOdometry,
     frame_indices: Sequence[int],
     *,
-    on_frame: Callable[[int, Transform], None] | None = None,
+    on_frame: Callable[[int, Transform, Points], None] | None = None,
 ) -> OdometryRun:
-    """Run ``method`` over the chosen frames. Ctrl-C stops cleanly and returns the partial trajectory."""
+    """Run ``method`` over the chosen frames. Ctrl-C stops cleanly and returns the partial trajectory.
+
+    ``on_frame(index, pose, points)`` sees each frame once, as loaded (for progress, checkpoints, maps).
+    """
     method.reset()
     poses: list[Transform] = []
     infos: list[dict[str, Any]] = []
@@ -189,7 +192,7 @@ def run_odometry(
             infos.append(dict(getattr(method, "last_info", {})))
             used.append(index)
             if on_frame is not None:
-                on_frame(index, pose)
+                on_frame(index, pose, points)
     except KeyboardInterrupt:
         interrupted = True
     wall = time.perf_counter() - started

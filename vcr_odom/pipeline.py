@@ -14,10 +14,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from vcr_odom.data.base import LidarSequence
+from vcr_odom.data.base import LidarSequence, Points
 from vcr_odom.errors import ConfigError
 from vcr_odom.geometry import Transform, lidar_to_camera_poses, normalise_to_first
 from vcr_odom.io import write_kitti_poses, write_tum_trajectory
+from vcr_odom.mapping import VoxelMap
 from vcr_odom.metrics import EvaluationReport, evaluate
 from vcr_odom.odometry import InitialGuess, OdometryRun, PairwiseOdometry, run_odometry
 from vcr_odom.plots import plot_trajectories
@@ -91,13 +92,13 @@ def save_trajectory(folder: Path, run: OdometryRun, sequence: LidarSequence) -> 
     return SavedTrajectory(kitti=kitti, tum=tum, frame=frame)
 
 
-def checkpointing(folder: Path, sequence: LidarSequence) -> Callable[[int, Transform], None]:
+def checkpointing(folder: Path, sequence: LidarSequence) -> Callable[..., None]:
     """An ``on_frame`` callback that re-writes the partial trajectory every few frames (atomically)."""
     poses: list[Transform] = []
     indices: list[int] = []
     timestamps = sequence.timestamps
 
-    def on_frame(index: int, pose: Transform) -> None:
+    def on_frame(index: int, pose: Transform, *_: Any) -> None:
         poses.append(pose)
         indices.append(index)
         if len(poses) % CHECKPOINT_EVERY_FRAMES == 0:
@@ -121,14 +122,21 @@ def run_and_save(
     frame_indices: Sequence[int],
     folder: Path,
     *,
-    progress: Callable[[int, Transform], None] | None = None,
+    progress: Callable[..., None] | None = None,
     plot_title: str = "",
+    voxel_map: VoxelMap | None = None,
 ) -> tuple[OdometryRun, EvaluationReport | None]:
-    """Run one method, write its trajectory, metrics and plot into ``folder``."""
+    """Run one method, write its trajectory, metrics and plot into ``folder``.
+
+    With ``voxel_map`` each registered scan is added to it as it comes (the frame is not read twice);
+    the plot then shows the trajectory over a top-down view of the map.
+    """
     checkpoint = checkpointing(folder, sequence)
 
-    def on_frame(index: int, pose: Transform) -> None:
+    def on_frame(index: int, pose: Transform, points: Points) -> None:
         checkpoint(index, pose)
+        if voxel_map is not None:
+            voxel_map.add(points, pose)
         if progress is not None:
             progress(index, pose)
 
@@ -147,6 +155,7 @@ def run_and_save(
         {run.method: run.poses},
         ground_truth_for(sequence, run.frame_indices),
         title=plot_title or f"{sequence.name}: {run.method}",
+        background_xy=voxel_map.top_down() if voxel_map is not None and len(voxel_map) else None,
     )
     return run, report
 
