@@ -1162,15 +1162,20 @@ class _LocalMesh(MeshBuilder):
 # -- vegetation ----------------------------------------------------------------------------------
 
 
+CROWN_CLEARANCE = 4.0
+"""Lowest leaves above the ground (m): street trees are pruned to clear traffic, and a crown that
+reached down over the road would engulf the sensor (seen with seed 7: a frame inside a crown)."""
+
+
 def _tree(block: _Block, xy: FloatArray, scale: float) -> None:
-    """A trunk and a blobby crown (one to three lumps), or a conifer cone."""
+    """A trunk and a blobby crown (one to three lumps) clear of the road's traffic, or a conifer cone."""
     rng = block.rng
     z = float(block.ground(xy)[0])
     trunk_albedo = float(rng.uniform(0.2, 0.35))
     leaf_albedo = float(rng.uniform(0.35, 0.6))
     if rng.random() < 0.2:
         height = rng.uniform(5.0, 12.0) * scale
-        radius = rng.uniform(1.2, 2.6) * scale
+        radius = rng.uniform(0.8, 1.6) * scale  # narrow enough to stay off the road from a yard
         block.mesh.cylinder([*xy, z - 0.2], [0, 0, 1], 0.15 * scale, 1.4, Surface.WOOD, trunk_albedo, 6)
         block.mesh.cylinder(
             [*xy, z + 1.0], [0, 0, 1], radius, height, Surface.VEGETATION, leaf_albedo, 10, 0.0
@@ -1178,6 +1183,8 @@ def _tree(block: _Block, xy: FloatArray, scale: float) -> None:
         return
     trunk_h = rng.uniform(1.8, 3.5) * scale
     crown = rng.uniform(1.3, 3.8) * scale
+    # The lowest lump reaches about 1.25 crown below the crown centre (0.8 crown above the trunk top).
+    trunk_h = max(trunk_h, CROWN_CLEARANCE + 0.45 * crown)
     lean = rng.normal(0.0, 0.05, 2)
     block.mesh.cylinder(
         [*xy, z - 0.2], [lean[0], lean[1], 1.0], rng.uniform(0.1, 0.3) * scale, trunk_h + crown * 0.6,
@@ -1186,6 +1193,7 @@ def _tree(block: _Block, xy: FloatArray, scale: float) -> None:
     top = np.array([*(xy + lean * trunk_h), z + trunk_h + crown * 0.8])
     for k in range(int(rng.integers(1, 4))):
         offset = rng.normal(0.0, 0.35 * crown, 3) * (k > 0)
+        offset[2] = abs(offset[2])  # extra lumps sit beside or above the first, never below it
         radii = (
             crown * rng.uniform(0.7, 1.0) * np.array([1.0, rng.uniform(0.8, 1.2), rng.uniform(0.75, 1.25)])
         )
