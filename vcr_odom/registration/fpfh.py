@@ -37,11 +37,11 @@ class FpfhRansac:
     hypotheses tie, measured 2-3x worse (10-30 cm); mutual filter on and an edge-length checker
     (0.9) to reject inconsistent triplets early; 100k iterations at confidence 0.999;
     ``max_range=60`` m, since sparse far rings give noisy normals and descriptors.
-    ``refine=True`` adds a converged point-to-plane ICP from the RANSAC result (off by default so
-    the method stays a pure global baseline).
+    A polish is not built in: ``fpfh+icp`` / ``fpfh+kiss-icp`` (:mod:`vcr_odom.refine`) polish any
+    global method the same way.
     Measured on the real KITTI sample (2 shared CPU cores): ~0.15-0.2 s per frame to prepare plus
     ~0.4-0.8 s of RANSAC per pair; consecutive pairs 10.6 cm / 0.28° RMSE, 5-frame pairs 9.3 cm /
-    0.36° (no refinement); with ``refine=True`` a consecutive pair comes within ~2 cm / 0.06°.
+    0.36° (no refinement).
     """
 
     voxel_size: float = 0.5
@@ -56,9 +56,6 @@ class FpfhRansac:
     min_range: float = 2.0
     max_range: float = 60.0
     seed: int = 0
-    refine: bool = False
-    refine_max_correspondence_distance: float = 1.0
-    refine_max_iterations: int = 100
     name: str = "fpfh"
     needs_initial_guess: bool = False
 
@@ -105,20 +102,9 @@ class FpfhRansac:
             checkers,
             registration.RANSACConvergenceCriteria(self.max_iterations, self.confidence),
         )
-        info = {"ransac_fitness": float(result.fitness), "refined": False}
-        if self.refine:
-            result = registration.registration_icp(
-                source.cloud,
-                target.cloud,
-                self.refine_max_correspondence_distance,
-                result.transformation,
-                registration.TransformationEstimationPointToPlane(),
-                registration.ICPConvergenceCriteria(1e-6, 1e-6, self.refine_max_iterations),
-            )
-            info["refined"] = True
         return RegistrationResult(
             transform=np.asarray(result.transformation, dtype=np.float64).copy(),
             fitness=float(result.fitness),
             inlier_rmse=float(result.inlier_rmse),
-            info=info,
+            info={"ransac_fitness": float(result.fitness)},
         )
