@@ -66,14 +66,6 @@ def ground_truth_for(sequence: LidarSequence, frame_indices: Sequence[int]) -> N
     return normalise_to_first(gt[list(frame_indices)])
 
 
-def score(run: OdometryRun, sequence: LidarSequence) -> EvaluationReport | None:
-    """Scores against ground truth over the frames the run actually processed (None without it)."""
-    gt = ground_truth_for(sequence, run.frame_indices)
-    if gt is None or len(run.poses) < 2:
-        return None
-    return evaluate(run.poses, gt)
-
-
 @dataclass
 class SavedTrajectory:
     kitti: Path
@@ -144,7 +136,8 @@ def run_and_save(
     if len(run.poses) == 0:
         return run, None
     save_trajectory(folder, run, sequence)
-    report = score(run, sequence)
+    gt = ground_truth_for(sequence, run.frame_indices)
+    report = evaluate(run.poses, gt) if gt is not None and len(run.poses) >= 2 else None
     summary = run_summary(run)
     if report is not None:
         write_json(folder / "metrics.json", {"run": summary, **report.to_dict()})
@@ -153,7 +146,7 @@ def run_and_save(
     plot_trajectories(
         folder / "trajectory.png",
         {run.method: run.poses},
-        ground_truth_for(sequence, run.frame_indices),
+        gt,
         title=plot_title or f"{sequence.name}: {run.method}",
         background_xy=voxel_map.top_down() if voxel_map is not None and len(voxel_map) else None,
     )
