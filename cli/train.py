@@ -18,6 +18,7 @@ from vcr_odom.cli.progress import console
 from vcr_odom.data import open_sequence
 from vcr_odom.data.pairs import FrameCache, PairConfig, build_frame_cache, train_val_datasets
 from vcr_odom.model.config import VcrConfig
+from vcr_odom.odometry import select_frames
 from vcr_odom.train import DEVICES, ProgressEvent, TrainConfig, pretrain, train
 
 F = Callable[..., Any]
@@ -50,6 +51,18 @@ def _cache_source_options(function: F) -> F:
                 show_default=True,
                 help="Independent down-samplings stored per frame.",
             ),
+            click.option(
+                "--frames",
+                default=None,
+                help="Only frames A:B of each --seq (B exclusive), e.g. to keep a test block out.",
+            ),
+            click.option(
+                "--stride",
+                type=click.IntRange(min=1),
+                default=1,
+                show_default=True,
+                help="Every K-th frame of --frames (neighbouring frames are near-copies).",
+            ),
         ]
     ):
         function = decorator(function)
@@ -64,21 +77,32 @@ def _cache_source_options(function: F) -> F:
     required=True,
     help="The .npz file to write (one sequence: give one --seq).",
 )
-def cache(data_root: Path | None, seqs: tuple[str, ...], preset: str, copies: int, out: Path) -> None:
+def cache(
+    data_root: Path | None,
+    seqs: tuple[str, ...],
+    preset: str,
+    copies: int,
+    frames: str | None,
+    stride: int,
+    out: Path,
+) -> None:
     """Ground-remove and down-sample a sequence once into a compact training cache (.npz)."""
     if len(seqs) != 1:
         raise click.BadParameter("give exactly one --seq per cache file", param_hint="--seq")
-    built = _build_cache(data_root, seqs[0], VcrConfig.preset(preset), copies)
+    built = _build_cache(data_root, seqs[0], VcrConfig.preset(preset), copies, frames, stride)
     built.save(out)
     console.print(f"{len(built.frame_indices)} frames x {copies} copies written to {out}")
 
 
-def _build_cache(data_root: Path | None, seq: str, model_config: VcrConfig, copies: int) -> FrameCache:
+def _build_cache(
+    data_root: Path | None, seq: str, model_config: VcrConfig, copies: int, frames: str | None, stride: int
+) -> FrameCache:
     sequence = open_sequence(seq, data_root=data_root)
+    indices = select_frames(len(sequence), frames, stride)
     config = PairConfig(num_points=model_config.num_points)
-    with _bar(f"pre-processing {sequence.name}", len(sequence)) as advance:
+    with _bar(f"pre-processing {sequence.name}", len(indices)) as advance:
         return build_frame_cache(
-            sequence, config=config, copies=copies, progress=lambda done, _: advance(done)
+            sequence, indices, config=config, copies=copies, progress=lambda done, _: advance(done)
         )
 
 
@@ -129,6 +153,14 @@ def _training_options(function: F) -> F:
                 help="Checkpoints (last.pt), best.safetensors, history.json.",
             ),
             click.option("--resume", is_flag=True, help="Continue from OUT/last.pt."),
+            click.option(
+                "--select-on",
+                type=click.Choice(["loss", "rmse"]),
+                default="loss",
+                show_default=True,
+                help="What picks best.safetensors: validation loss, or rotation RMSE / 1° + "
+                "translation RMSE / 0.25 m.",
+            ),
         ]
     ):
         function = decorator(function)
@@ -139,7 +171,10 @@ def _run_training(entry: Callable[..., Any], options: dict[str, Any], **extra: A
     model_config = VcrConfig.preset(options["preset"])
     caches = [FrameCache.load(path, num_points=model_config.num_points) for path in options["caches"]]
     caches += [
-        _build_cache(options["data_root"], seq, model_config, options["copies"]) for seq in options["seqs"]
+        _build_cache(
+            options["data_root"], seq, model_config, options["copies"], options["frames"], options["stride"]
+        )
+        for seq in options["seqs"]
     ]
     if not caches:
         raise click.UsageError("give training data: --seq (with --data-root) or --cache")
@@ -158,6 +193,7 @@ def _run_training(entry: Callable[..., Any], options: dict[str, Any], **extra: A
         seed=options["seed"],
         device=options["device"],
         out=options["out"],
+        select_on=options["select_on"],
         **extra,
     )
     with _training_bar() as on_event:
