@@ -20,9 +20,11 @@ from vcr_odom.cli.progress import console, frame_progress
 from vcr_odom.cli.tables import ComparisonRow, comparison_table, pair_protocol_table
 from vcr_odom.data.base import LidarSequence
 from vcr_odom.errors import ConfigError
+from vcr_odom.model.weights import default_weights_path, read_weights
 from vcr_odom.odometry import InitialGuess
 from vcr_odom.pair_benchmark import evaluate_pair_protocol, same_scan_pairs
 from vcr_odom.pipeline import MethodOutcome, compare_methods, parse_method_spec
+from vcr_odom.registration.polish import PAIR_POLISHES
 from vcr_odom.results import create_result_folder, provenance, write_json
 
 DEFAULT_BASELINES = ("icp10", "icp", "fpfh", "kiss-icp")
@@ -59,9 +61,9 @@ def _check_specs(ctx: click.Context, param: click.Parameter, specs: tuple[str, .
 @click.option(
     "--pair-points",
     type=click.IntRange(min=64),
-    default=1024,
-    show_default=True,
-    help="Points per cloud in the pairs protocol (the paper: 1024).",
+    default=None,
+    help="Points per cloud in the pairs protocol. Default: the VCR weights' N when a VCR row is "
+    "compared (512 for the shipped default, 1024 for the paper's configuration), else 1024 (the paper's).",
 )
 @click.option(
     "--seed", type=int, default=0, show_default=True, help="Seed of the pairs protocol's transforms."
@@ -73,7 +75,7 @@ def compare(
     selection: FrameSelection,
     baselines: tuple[str, ...],
     protocol: str,
-    pair_points: int,
+    pair_points: int | None,
     seed: int,
     initial_guess: str,
     weights: Path | None,
@@ -83,6 +85,8 @@ def compare(
     """Run the methods on the same frames and print one table per protocol."""
     methods = list(dict.fromkeys(baselines or DEFAULT_BASELINES))
     options = {spec: method_options(parse_method_spec(spec)[0], weights, device) for spec in methods}
+    if pair_points is None:
+        pair_points = default_pair_points(methods, weights)
     run_comparison(selection, methods, initial_guess, results_dir, options, protocol, pair_points, seed)
 
 
@@ -164,12 +168,12 @@ def compare_pairs(
     pair_points: int,
     seed: int,
 ) -> None:
-    pairwise = [m for m in methods if m != "kiss-icp" and "+" not in m]
+    pairwise = [m for m in methods if _works_on_pairs(m)]
     if len(pairwise) < len(methods):
         left_out = ", ".join(m for m in methods if m not in pairwise)
         console.print(
-            f"[dim]left out of the pairs protocol: {left_out} (kiss-icp is a sequential odometry; "
-            "polished rows exist only in the odometry table so far)."
+            f"[dim]left out of the pairs protocol: {left_out} (kiss-icp, as a method or a polish, "
+            "needs a sequence's local map)."
         )
     with frame_progress(f"building pairs ({pair_points} points)", len(indices)) as advance:
         pairs = same_scan_pairs(sequence, indices, pair_points, seed, progress=lambda *_: advance())
@@ -178,3 +182,16 @@ def compare_pairs(
     write_json(out / "pairs.json", {name: result.to_dict() for name, result in results.items()})
     title = f"{sequence.name} pairs protocol (paper Table III): {len(pairs)} pairs of {pair_points} points"
     console.print(pair_protocol_table(results, title))
+
+
+def _works_on_pairs(spec: str) -> bool:
+    name, refine = parse_method_spec(spec)
+    return name != "kiss-icp" and refine in ("none", *PAIR_POLISHES)
+
+
+def default_pair_points(methods: list[str], weights: Path | None) -> int:
+    """The VCR weights' N when a VCR row is compared (the network is trained on N-point clouds), else
+    the paper's 1024."""
+    if any(parse_method_spec(spec)[0] == "vcr" for spec in methods):
+        return read_weights(weights or default_weights_path("default"))[1].num_points
+    return 1024

@@ -128,3 +128,34 @@ def test_bad_arguments(synth_pairs: Any) -> None:
         evaluate_pair_protocol(["nope"], synth_pairs)
     with pytest.raises(ConfigError, match="no pairs"):
         evaluate_pair_protocol(["icp10"], [])
+
+
+def test_polished_row_starts_icp_from_the_global_estimate(synth_pairs: Any) -> None:
+    """``NAME+icp``: the sparse ICP receives NAME's estimate (off by 1.5° / 0.4 m here) and closes it."""
+    from vcr_odom.data.pairs import random_rigid_transform
+    from vcr_odom.registration.polish import PolishedRegistrar, SparseIcp
+
+    samples = [synth_pairs.sample(i) for i in range(len(synth_pairs))]
+    rng = np.random.default_rng(3)
+    truth = {}
+    for sample in samples:
+        frame = np.hstack([sample["source"], np.zeros((len(sample["source"]), 1), np.float32)])
+        offset = random_rigid_transform(rng, 1.5, 0.5, 0.4, 0.1)
+        truth[frame.tobytes()] = offset @ sample["transform"]
+    rough = LookupRegistrar("rough", truth)
+    polished = PolishedRegistrar(rough, SparseIcp())
+    results = evaluate_pair_protocol([rough, polished], synth_pairs)
+    assert polished.name == "rough+icp"
+    assert results["rough"].errors.rot_rmse_deg > 0.5
+    assert results["rough+icp"].errors.rot_rmse_deg < 0.1
+    assert results["rough+icp"].errors.trans_rmse_m < 0.05
+
+
+def test_pairs_accept_icp_polish_and_reject_kiss_polish(synth_pairs: Any) -> None:
+    results = evaluate_pair_protocol(
+        ["fpfh+icp"], synth_pairs, options={"fpfh+icp": {"feature_radius_factor": 10.0}}
+    )
+    assert results["fpfh+icp"].errors.success_rate == 1.0
+    assert results["fpfh+icp"].errors.trans_rmse_m < 0.05
+    with pytest.raises(ConfigError, match="local map"):
+        evaluate_pair_protocol(["fpfh+kiss-icp"], synth_pairs)

@@ -39,8 +39,9 @@ if TYPE_CHECKING:
 
 INITIAL_GUESSES = ("identity", "ground-truth")
 SEQUENTIAL_METHODS = ("kiss-icp",)
-DEFAULT_PAIR_METHODS = ("icp10", "fpfh", "vcr")
-"""The paper's Table III rows (VCR+ICP is VCR polished by ICP; see the issues)."""
+DEFAULT_PAIR_METHODS = ("icp10", "fpfh", "vcr", "vcr+icp")
+"""The paper's Table III rows; ``NAME+icp`` is NAME polished by ICP on the pair's own clouds
+(:mod:`vcr_odom.registration.polish`)."""
 
 Pair = Mapping[str, Any]
 """One pair: ``source`` / ``target`` ``(N, >=3)`` points and ``transform`` = ``T_target_source``."""
@@ -127,15 +128,19 @@ def _materialise(dataset_or_pairs: PairDataset | Iterable[Pair]) -> list[dict[st
 
 def _build(name: str, options: Mapping[str, Mapping[str, Any]]) -> Registrar:
     from vcr_odom.registration import make_method
+    from vcr_odom.registration.polish import polished_for_pairs
 
     key = name.strip().lower()
-    if key in SEQUENTIAL_METHODS:
+    base, _, polish = key.partition("+")
+    if base in SEQUENTIAL_METHODS:
         raise ConfigError(
             f"{name!r} is a sequential odometry method (it keeps a local map across frames), not a "
             "pairwise registrar: it has no meaning on independent pairs; use it in the odometry "
             "comparison instead"
         )
-    method = make_method(key, **dict(options.get(key, options.get(name, {}))))
+    method = make_method(base, **dict(options.get(base, options.get(name, {}))))
+    if polish and polish != "none":
+        return polished_for_pairs(method, polish)  # type: ignore[arg-type]
     return method  # type: ignore[return-value]
 
 

@@ -45,7 +45,12 @@ class VcrRegistrar:
 
     @torch.inference_mode()
     def prepare(self, points: Points) -> VcrFrame:
-        xyz = preprocess(points, self.preprocess_config)[:, :3]
+        """Encode a frame. A cloud of exactly N points is taken as already pre-processed (the pairs
+        protocol's clouds are): ground removal and sampling again would only drop or shuffle points."""
+        if len(points) == self.config.num_points:
+            xyz = np.asarray(points, dtype=np.float32)[:, :3]
+        else:
+            xyz = preprocess(points, self.preprocess_config)[:, :3]
         tensor = torch.as_tensor(np.ascontiguousarray(xyz), dtype=torch.float32, device=self.device)[None]
         return VcrFrame(tensor, self.model.encode(tensor))
 
