@@ -22,7 +22,7 @@ from vcr_odom.data.base import LidarSequence
 from vcr_odom.errors import ConfigError
 from vcr_odom.model.weights import default_weights_path, read_weights
 from vcr_odom.odometry import InitialGuess
-from vcr_odom.pair_benchmark import evaluate_pair_protocol, same_scan_pairs
+from vcr_odom.pair_benchmark import PAIR_KINDS, evaluate_pair_protocol, pair_sets
 from vcr_odom.pipeline import MethodOutcome, compare_methods, parse_method_spec
 from vcr_odom.registration.polish import PAIR_POLISHES
 from vcr_odom.results import create_result_folder, provenance, write_json
@@ -66,6 +66,15 @@ def _check_specs(ctx: click.Context, param: click.Parameter, specs: tuple[str, .
     "compared (512 for the shipped default, 1024 for the paper's configuration), else 1024 (the paper's).",
 )
 @click.option(
+    "--pairs",
+    "pair_kind",
+    type=click.Choice(["same-scan", "consecutive", "both"]),
+    default="both",
+    show_default=True,
+    help="Pairs protocol: the paper's same-scan pairs, consecutive frames (the stride apart, ground-truth "
+    "motion, no random move), or a table for each.",
+)
+@click.option(
     "--seed", type=int, default=0, show_default=True, help="Seed of the pairs protocol's transforms."
 )
 @initial_guess_option
@@ -76,6 +85,7 @@ def compare(
     baselines: tuple[str, ...],
     protocol: str,
     pair_points: int | None,
+    pair_kind: str,
     seed: int,
     initial_guess: str,
     weights: Path | None,
@@ -87,7 +97,10 @@ def compare(
     options = {spec: method_options(parse_method_spec(spec)[0], weights, device) for spec in methods}
     if pair_points is None:
         pair_points = default_pair_points(methods, weights)
-    run_comparison(selection, methods, initial_guess, results_dir, options, protocol, pair_points, seed)
+    kinds = PAIR_KINDS if pair_kind == "both" else (pair_kind,)
+    run_comparison(
+        selection, methods, initial_guess, results_dir, options, protocol, pair_points, seed, kinds
+    )
 
 
 def run_comparison(
@@ -99,8 +112,9 @@ def run_comparison(
     protocol: str = "odometry",
     pair_points: int = 1024,
     seed: int = 0,
+    pair_kinds: tuple[str, ...] = PAIR_KINDS,
 ) -> None:
-    """Shared by ``compare`` and ``demo``: one result folder, one table per protocol."""
+    """Shared by ``compare`` and ``demo``: one result folder, one table per protocol (and pair kind)."""
     sequence = selection.open()
     indices = selection.indices(sequence)
     out = create_result_folder(results_dir, f"compare_{sequence.name}_stride{selection.stride}")
@@ -111,6 +125,7 @@ def run_comparison(
         "methods": methods,
         "protocol": protocol,
         "pair_points": pair_points,
+        "pair_kinds": list(pair_kinds),
         "seed": seed,
         "initial_guess": initial_guess,
         "method_options": options or {},
@@ -119,7 +134,7 @@ def run_comparison(
     if protocol in ("odometry", "both"):
         compare_odometry(sequence, indices, selection.stride, methods, initial_guess, out, options)
     if protocol in ("pairs", "both"):
-        compare_pairs(sequence, indices, methods, out, options, pair_points, seed)
+        compare_pairs(sequence, indices, methods, out, options, pair_points, seed, pair_kinds)
     console.print(f"Results in {out}")
 
 
@@ -167,7 +182,9 @@ def compare_pairs(
     options: dict[str, dict[str, Any]] | None,
     pair_points: int,
     seed: int,
+    kinds: tuple[str, ...] = PAIR_KINDS,
 ) -> None:
+    """One table per pair kind; ``pairs.json`` maps kind -> method -> figures."""
     pairwise = [m for m in methods if _works_on_pairs(m)]
     if len(pairwise) < len(methods):
         left_out = ", ".join(m for m in methods if m not in pairwise)
@@ -175,13 +192,22 @@ def compare_pairs(
             f"[dim]left out of the pairs protocol: {left_out} (kiss-icp, as a method or a polish, "
             "needs a sequence's local map)."
         )
+    if "consecutive" in kinds and sequence.gt_poses is None:
+        console.print(f"[dim]no consecutive-pairs table: {sequence.name} has no ground-truth poses")
+        kinds = tuple(k for k in kinds if k != "consecutive")
+    if not kinds:
+        return
     with frame_progress(f"building pairs ({pair_points} points)", len(indices)) as advance:
-        pairs = same_scan_pairs(sequence, indices, pair_points, seed, progress=lambda *_: advance())
-    with frame_progress("registering pairs", len(pairs) * len(pairwise)) as advance:
-        results = evaluate_pair_protocol(pairwise, pairs, options=options, progress=lambda *_: advance())
-    write_json(out / "pairs.json", {name: result.to_dict() for name, result in results.items()})
-    title = f"{sequence.name} pairs protocol (paper Table III): {len(pairs)} pairs of {pair_points} points"
-    console.print(pair_protocol_table(results, title))
+        pair_datasets = pair_sets(sequence, indices, pair_points, seed, kinds, progress=lambda *_: advance())
+    report: dict[str, Any] = {}
+    for kind, pairs in pair_datasets.items():
+        with frame_progress(f"registering {kind} pairs", len(pairs) * len(pairwise)) as advance:
+            results = evaluate_pair_protocol(pairwise, pairs, options=options, progress=lambda *_: advance())
+        report[kind] = {name: result.to_dict() for name, result in results.items()}
+        label = "paper Table III" if kind == "same-scan" else f"frames {indices[1] - indices[0]} apart"
+        title = f"{sequence.name} {kind} pairs ({label}): {len(pairs)} pairs of {pair_points} points"
+        console.print(pair_protocol_table(results, title))
+    write_json(out / "pairs.json", report)
 
 
 def _works_on_pairs(spec: str) -> bool:

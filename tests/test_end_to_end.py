@@ -197,12 +197,17 @@ def test_compare_both_protocols_prints_the_pairs_table_without_kiss_icp(syntheti
         "--results-dir",
         str(tmp_path),
     )
-    assert "odometry" in output and "pairs protocol (paper Table III): 4 pairs of 1024 points" in output
+    assert "odometry" in output and "same-scan pairs (paper Table III): 4 pairs of 1024 points" in output
+    assert "consecutive pairs (frames 1 apart): 3 pairs of 1024 points" in output
     assert "left out of the pairs protocol: kiss-icp" in output
-    pairs = json.loads(((tmp_path / "latest").resolve() / "pairs.json").read_text())
+    report = json.loads(((tmp_path / "latest").resolve() / "pairs.json").read_text())
+    assert set(report) == {"same-scan", "consecutive"}
+    pairs = report["same-scan"]
     assert set(pairs) == {"icp10", "fpfh"}
     # The random ±30° / ±5 m moves are what a global method recovers and ICP from identity does not.
     assert pairs["fpfh"]["errors"]["success_rate"] > pairs["icp10"]["errors"]["success_rate"]
+    # Consecutive frames are < 1.5 m apart: ICP from identity succeeds there.
+    assert report["consecutive"]["icp10"]["errors"]["success_rate"] == 1.0
 
 
 def test_run_saves_a_map_of_the_registered_scans(synthetic_root, tmp_path):

@@ -159,3 +159,23 @@ def test_pairs_accept_icp_polish_and_reject_kiss_polish(synth_pairs: Any) -> Non
     assert results["fpfh+icp"].errors.trans_rmse_m < 0.05
     with pytest.raises(ConfigError, match="local map"):
         evaluate_pair_protocol(["fpfh+kiss-icp"], synth_pairs)
+
+
+def test_consecutive_pairs_carry_the_ground_truth_motion() -> None:
+    from vcr_odom.data.synth import SynthSequence
+    from vcr_odom.geometry import invert
+    from vcr_odom.pair_benchmark import pair_sets
+
+    sequence = SynthSequence(frames=7, seed=0)
+    sets = pair_sets(sequence, [0, 3, 6], NUM_POINTS, kinds=("consecutive",))
+    assert set(sets) == {"consecutive"}
+    pairs = [sets["consecutive"].sample(i) for i in range(len(sets["consecutive"]))]
+    assert len(pairs) == 2
+    poses = sequence.gt_poses
+    # As in odometry: the newer frame (source) registered to the one before it (target).
+    for pair, (source, target) in zip(pairs, [(3, 0), (6, 3)], strict=True):
+        np.testing.assert_allclose(pair["transform"], invert(poses[target]) @ poses[source], atol=1e-9)
+    with pytest.raises(ConfigError, match="evenly spaced"):
+        pair_sets(sequence, [0, 1, 3], NUM_POINTS, kinds=("consecutive",))
+    with pytest.raises(ConfigError, match="pair kinds"):
+        pair_sets(sequence, [0, 1], NUM_POINTS, kinds=("random",))

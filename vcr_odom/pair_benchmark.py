@@ -23,6 +23,7 @@ import statistics
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
+from itertools import pairwise
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -76,6 +77,11 @@ class PairProtocolResult:
         return json_safe(result)
 
 
+PAIR_KINDS = ("same-scan", "consecutive")
+"""``same-scan``: the paper's protocol. ``consecutive``: each selected frame against the next selected
+one (the stride apart) with its ground-truth motion and no random transform: what odometry asks."""
+
+
 def same_scan_pairs(
     sequence: LidarSequence,
     frame_indices: Sequence[int] | None = None,
@@ -86,11 +92,41 @@ def same_scan_pairs(
     """The paper's protocol on any sequence: one pair per frame (two independent down-samplings of the
     ground-removed scan, the second moved by a random transform). Deterministic in ``seed``; needs
     open3d (it builds the frame cache in memory)."""
+    return pair_sets(sequence, frame_indices, num_points, seed, ("same-scan",), progress)["same-scan"]
+
+
+def pair_sets(
+    sequence: LidarSequence,
+    frame_indices: Sequence[int] | None,
+    num_points: int,
+    seed: int = 0,
+    kinds: Sequence[str] = PAIR_KINDS,
+    progress: Callable[[int, int], None] | None = None,
+) -> dict[str, PairDataset]:
+    """Pairs of each kind in ``kinds`` from one frame cache (each frame pre-processed once).
+
+    Consecutive pairs need the sequence's ground-truth poses and are one fewer than the frames; with
+    frames ``a, a+s, a+2s, ...`` they are ``s`` frames apart."""
     from vcr_odom.data.pairs import PairConfig, PairDataset, build_frame_cache
 
-    config = PairConfig(protocol="same-scan", num_points=num_points, seed=seed)
-    cache = build_frame_cache(sequence, frame_indices, config, copies=2, progress=progress)
-    return PairDataset(cache, config)
+    unknown = sorted(set(kinds) - set(PAIR_KINDS))
+    if unknown or not kinds:
+        raise ConfigError(f"pair kinds must be among {', '.join(PAIR_KINDS)}; got {list(kinds)}")
+    frames = list(range(len(sequence))) if frame_indices is None else [int(f) for f in frame_indices]
+    gaps = sorted({b - a for a, b in pairwise(frames)})
+    if "consecutive" in kinds and (len(gaps) != 1 or gaps[0] < 1):
+        raise ConfigError(f"consecutive pairs need evenly spaced increasing frames; got gaps {gaps}")
+    same_scan = PairConfig(protocol="same-scan", num_points=num_points, seed=seed)
+    cache = build_frame_cache(sequence, frames, same_scan, copies=2, progress=progress)
+    sets: dict[str, PairDataset] = {}
+    if "same-scan" in kinds:
+        sets["same-scan"] = PairDataset(cache, same_scan)
+    if "consecutive" in kinds:
+        if cache.gt_poses is None:
+            raise ConfigError(f"consecutive pairs need ground-truth poses; {sequence.name} has none")
+        odometry = PairConfig(protocol="odometry", num_points=num_points, seed=seed, gaps=(gaps[0],))
+        sets["consecutive"] = PairDataset(cache, odometry)
+    return sets
 
 
 def _as_frame(points: Any) -> NDArray[np.float32]:
@@ -211,7 +247,9 @@ def evaluate_pair_protocol(
 __all__ = [
     "DEFAULT_PAIR_METHODS",
     "INITIAL_GUESSES",
+    "PAIR_KINDS",
     "PairProtocolResult",
     "evaluate_pair_protocol",
+    "pair_sets",
     "same_scan_pairs",
 ]
