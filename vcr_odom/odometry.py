@@ -160,6 +160,13 @@ def select_frames(length: int, frames: str | None = None, stride: int = 1) -> li
     return indices
 
 
+def _batch_size(method: SequentialOdometry) -> int:
+    """Frames handed over at once: a method with ``step_many`` says how many it batches; others take 1."""
+    if not callable(getattr(method, "step_many", None)):
+        return 1
+    return max(1, int(getattr(method, "batch_size", 1)))
+
+
 def run_odometry(
     sequence: LidarSequence,
     method: SequentialOdometry,
@@ -170,6 +177,8 @@ def run_odometry(
     """Run ``method`` over the chosen frames. Ctrl-C stops cleanly and returns the partial trajectory.
 
     ``on_frame(index, pose, points)`` sees each frame once, as loaded (for progress, checkpoints, maps).
+    A method that batches (``step_many``, ``batch_size`` > 1: VCR-Net on a GPU) gets chunks of frames;
+    the poses are the same, ``on_frame`` just comes a chunk at a time.
     """
     method.reset()
     poses: list[Transform] = []
@@ -180,19 +189,27 @@ def run_odometry(
     started = time.perf_counter()
     interrupted = False
     all_timestamps = sequence.timestamps
+    batch = _batch_size(method)
+    frame_indices = list(frame_indices)
     try:
-        for index in frame_indices:
+        for chunk_start in range(0, len(frame_indices), batch):
+            chunk = frame_indices[chunk_start : chunk_start + batch]
             load_started = time.perf_counter()
-            points = sequence.frame(index)
+            frames = [(sequence.frame(index), float(all_timestamps[index])) for index in chunk]
             load_seconds += time.perf_counter() - load_started
             step_started = time.perf_counter()
-            pose = method.step(points, float(all_timestamps[index]))
+            if batch > 1:
+                outcomes = method.step_many(frames)  # type: ignore[attr-defined]
+            else:
+                pose = method.step(*frames[0])
+                outcomes = [(pose, dict(getattr(method, "last_info", {})))]
             method_seconds += time.perf_counter() - step_started
-            poses.append(np.asarray(pose, dtype=np.float64))
-            infos.append(dict(getattr(method, "last_info", {})))
-            used.append(index)
-            if on_frame is not None:
-                on_frame(index, pose, points)
+            for index, (points, _), (pose, info) in zip(chunk, frames, outcomes, strict=True):
+                poses.append(np.asarray(pose, dtype=np.float64))
+                infos.append(info)
+                used.append(index)
+                if on_frame is not None:
+                    on_frame(index, pose, points)
     except KeyboardInterrupt:
         interrupted = True
     wall = time.perf_counter() - started

@@ -24,7 +24,7 @@ from vcr_odom.odometry import InitialGuess, OdometryRun, PairwiseOdometry, run_o
 from vcr_odom.plots import plot_trajectories
 from vcr_odom.refine import RefinedOdometry, check_refine
 from vcr_odom.registration import METHOD_NAMES, make_method
-from vcr_odom.registration.base import Registrar, SequentialOdometry
+from vcr_odom.registration.base import BatchRegistrar, Registrar, SequentialOdometry
 from vcr_odom.results import write_json
 
 CHECKPOINT_EVERY_FRAMES = 50
@@ -53,7 +53,8 @@ def build_odometry(
         return method
     if not isinstance(method, Registrar):
         raise TypeError(f"make_method({name!r}) returned {type(method).__name__}, not a registration method")
-    if refine != "none":
+    if refine != "none" or isinstance(method, BatchRegistrar):
+        # A global method takes no guess, so RefinedOdometry("none") is PairwiseOdometry plus batching.
         return RefinedOdometry(method, refine)
     return PairwiseOdometry(method, initial_guess)
 

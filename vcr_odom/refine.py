@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import time
 import warnings
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -25,7 +26,7 @@ from vcr_odom.data.base import Points
 from vcr_odom.errors import ConfigError, DataWarning
 from vcr_odom.geometry import Transform, invert, rotation_angle
 from vcr_odom.odometry import MotionLimits
-from vcr_odom.registration.base import Registrar
+from vcr_odom.registration.base import BatchRegistrar, Registrar, RegistrationResult
 from vcr_odom.registration.kiss import kiss_config
 from vcr_odom.registration.open3d_icp import Open3dIcp
 
@@ -121,6 +122,13 @@ class RefinedOdometry:
         self.stage_seconds = {"prepare": 0.0, "register": 0.0, "refine": 0.0}
         self.last_info = {}
 
+    @property
+    def batch_size(self) -> int:
+        """Frames per :meth:`step_many` call worth handing over (1 unless the registrar batches)."""
+        return (
+            int(getattr(self.registrar, "batch_size", 1)) if isinstance(self.registrar, BatchRegistrar) else 1
+        )
+
     def step(self, points: Points, timestamp: float = 0.0) -> Transform:
         """Register the frame to the previous one, polish, and return its pose in the frame-0 LiDAR frame.
 
@@ -130,14 +138,50 @@ class RefinedOdometry:
         started = time.perf_counter()
         prepared = self.registrar.prepare(points)
         self.stage_seconds["prepare"] += time.perf_counter() - started
-        self.last_info = {}
         if self._previous is None:
-            self._previous, self._last_timestamp = prepared, timestamp
-            self._start_refiner(points)
-            return self._pose.copy()
+            return self._first(points, prepared, timestamp)
         started = time.perf_counter()
         result = self.registrar.register(prepared, self._previous, None)
         self.stage_seconds["register"] += time.perf_counter() - started
+        return self._advance(points, prepared, timestamp, result)
+
+    def step_many(self, frames: Sequence[tuple[Points, float]]) -> list[tuple[Transform, dict[str, Any]]]:
+        """:meth:`step` for consecutive frames, with the registrar's work batched: every frame prepared
+        in one call, every pair (previous, frame) registered in one call; chaining and the polish stay
+        sequential. Returns each frame's pose and ``last_info``; the same numbers as one step at a time."""
+        if not isinstance(self.registrar, BatchRegistrar) or len(frames) < 2:
+            return [(self.step(points, t), dict(self.last_info)) for points, t in frames]
+        started = time.perf_counter()
+        prepared = self.registrar.prepare_batch([points for points, _ in frames])
+        self.stage_seconds["prepare"] += time.perf_counter() - started
+        out: list[tuple[Transform, dict[str, Any]]] = []
+        first = 0
+        if self._previous is None:
+            out.append((self._first(frames[0][0], prepared[0], frames[0][1]), {}))
+            first = 1
+        if first == len(frames):
+            return out
+        pairs = [
+            (prepared[i], prepared[i - 1] if i > 0 else self._previous) for i in range(first, len(frames))
+        ]
+        started = time.perf_counter()
+        results = self.registrar.register_batch(pairs)
+        self.stage_seconds["register"] += time.perf_counter() - started
+        for i, result in zip(range(first, len(frames)), results, strict=True):
+            points, timestamp = frames[i]
+            out.append((self._advance(points, prepared[i], timestamp, result), dict(self.last_info)))
+        return out
+
+    def _first(self, points: Points, prepared: Any, timestamp: float) -> Transform:
+        self.last_info = {}
+        self._previous, self._last_timestamp = prepared, timestamp
+        self._start_refiner(points)
+        return self._pose.copy()
+
+    def _advance(
+        self, points: Points, prepared: Any, timestamp: float, result: RegistrationResult
+    ) -> Transform:
+        """Check the coarse estimate, polish it, chain it: the sequential half of a step."""
         coarse = np.asarray(result.transform, dtype=np.float64)
         self.last_info = {"coarse_fitness": result.fitness, "coarse_inlier_rmse": result.inlier_rmse}
         problem = self.limits.violation(coarse, timestamp - self._last_timestamp)

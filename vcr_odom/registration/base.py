@@ -6,6 +6,7 @@ odometry loop does it once per frame and reuses it for both pairs the frame belo
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol, runtime_checkable
 
@@ -37,6 +38,22 @@ class Registrar(Protocol):
     def register(
         self, source: Any, target: Any, initial_guess: Transform | None = None
     ) -> RegistrationResult: ...
+
+
+@runtime_checkable
+class BatchRegistrar(Registrar, Protocol):
+    """A registrar that can prepare several frames and register several pairs in one call.
+
+    Why: on a GPU the network's cost is launch-bound at batch 1; the relative poses of an odometry are
+    independent, so a chunk of frames is encoded and its pairs registered together (chaining and the
+    polish stay sequential). ``batch_size`` is the chunk the odometry loop should hand over.
+    """
+
+    batch_size: int
+
+    def prepare_batch(self, frames: Sequence[Points]) -> list[Any]: ...
+
+    def register_batch(self, pairs: Sequence[tuple[Any, Any]]) -> list[RegistrationResult]: ...
 
 
 def identity_guess(initial_guess: Transform | None) -> Transform:

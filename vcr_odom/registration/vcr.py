@@ -6,18 +6,24 @@ so in odometry each frame is encoded once and its features serve both pairs it b
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
+from numpy.typing import NDArray
 
 from vcr_odom.data.base import Points
+from vcr_odom.errors import ConfigError
 from vcr_odom.geometry import Transform
 from vcr_odom.model.weights import default_weights_path, load_weights
 from vcr_odom.preprocess import PreprocessConfig, preprocess
 from vcr_odom.registration.base import RegistrationResult
 from vcr_odom.training.runtime import resolve_device
+
+GPU_BATCH_SIZE = 16
+"""Pairs per network call on CUDA (``batch_size=None``); 1 on the CPU."""
 
 
 @dataclass
@@ -34,30 +40,62 @@ class VcrRegistrar:
     name = "vcr"
     needs_initial_guess = False
 
-    def __init__(self, weights: str | Path | None = None, device: str = "auto", seed: int = 0) -> None:
+    def __init__(
+        self,
+        weights: str | Path | None = None,
+        device: str = "auto",
+        seed: int = 0,
+        batch_size: int | None = None,
+    ) -> None:
         path = Path(weights) if weights is not None else default_weights_path("default")
         self.device = resolve_device(device)
+        # Batches pay off where the network is launch-bound (a GPU); on a CPU they only add latency.
+        default_batch = GPU_BATCH_SIZE if self.device.type == "cuda" else 1
+        self.batch_size = default_batch if batch_size is None else int(batch_size)
+        if self.batch_size < 1:
+            raise ConfigError(f"batch_size must be >= 1; got {batch_size!r}")
         self.model, self.config, self.metadata = load_weights(path, device=str(self.device))
         self.model.eval()
         self.weights_path = path
         # Pre-processing as in training: ground removed, exactly N points by farthest point sampling.
         self.preprocess_config = PreprocessConfig(n_points=self.config.num_points, method="fps", seed=seed)
 
-    @torch.inference_mode()
-    def prepare(self, points: Points) -> VcrFrame:
-        """Encode a frame. A cloud of exactly N points is taken as already pre-processed (the pairs
+    def _network_input(self, points: Points) -> NDArray[np.float32]:
+        """Exactly N points. A cloud of exactly N points is taken as already pre-processed (the pairs
         protocol's clouds are): ground removal and sampling again would only drop or shuffle points."""
         if len(points) == self.config.num_points:
             xyz = np.asarray(points, dtype=np.float32)[:, :3]
         else:
             xyz = preprocess(points, self.preprocess_config)[:, :3]
-        tensor = torch.as_tensor(np.ascontiguousarray(xyz), dtype=torch.float32, device=self.device)[None]
-        return VcrFrame(tensor, self.model.encode(tensor))
+        return np.ascontiguousarray(xyz)
+
+    @torch.inference_mode()
+    def prepare(self, points: Points) -> VcrFrame:
+        return self.prepare_batch([points])[0]
+
+    @torch.inference_mode()
+    def prepare_batch(self, frames: Sequence[Points]) -> list[VcrFrame]:
+        """Pre-process each frame (CPU), then encode them all in one forward pass."""
+        stacked = np.stack([self._network_input(points) for points in frames])
+        tensor = torch.as_tensor(stacked, dtype=torch.float32, device=self.device)
+        features = self.model.encode(tensor)
+        return [VcrFrame(tensor[i : i + 1], features[i : i + 1]) for i in range(len(frames))]
 
     @torch.inference_mode()
     def register(
         self, source: VcrFrame, target: VcrFrame, initial_guess: Transform | None = None
     ) -> RegistrationResult:
-        output = self.model.register_features(source.points, source.features, target.points, target.features)
-        transform = output.transform[0].detach().to("cpu", torch.float64).numpy()
-        return RegistrationResult(transform)
+        return self.register_batch([(source, target)])[0]
+
+    @torch.inference_mode()
+    def register_batch(self, pairs: Sequence[tuple[VcrFrame, VcrFrame]]) -> list[RegistrationResult]:
+        """``T_target_source`` of every ``(source, target)`` pair, in one batched pass."""
+        sources, targets = zip(*pairs, strict=True)
+        output = self.model.register_features(
+            torch.cat([f.points for f in sources]),
+            torch.cat([f.features for f in sources]),
+            torch.cat([f.points for f in targets]),
+            torch.cat([f.features for f in targets]),
+        )
+        transforms = output.transform.detach().to("cpu", torch.float64).numpy()
+        return [RegistrationResult(transform.copy()) for transform in transforms]
