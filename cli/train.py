@@ -119,11 +119,11 @@ def _training_options(function: F) -> F:
             ),
             click.option(
                 "--protocol",
+                "protocols",
                 type=click.Choice(["odometry", "same-scan"]),
-                default="odometry",
-                show_default=True,
-                help="Pairs of different scans with GT motion, or the paper's "
-                "same-scan protocol (random yaw ±30°, tilt ±5°, ±5 m / ±1 m).",
+                multiple=True,
+                help="Pairs of different scans with GT motion, or the paper's same-scan protocol (random "
+                "yaw ±30°, tilt ±5°, ±5 m / ±1 m); repeat for both.  [default: odometry]",
             ),
             click.option(
                 "--augment/--no-augment",
@@ -178,14 +178,18 @@ def _run_training(entry: Callable[..., Any], options: dict[str, Any], **extra: A
     ]
     if not caches:
         raise click.UsageError("give training data: --seq (with --data-root) or --cache")
-    pairs = PairConfig(
-        protocol=options["protocol"],
-        num_points=model_config.num_points,
-        augment=options["augment"],
-        seed=options["seed"],
-    )
+    protocols = list(dict.fromkeys(options["protocols"] or ["odometry"]))
+    pairs = [
+        PairConfig(
+            protocol=protocol,
+            num_points=model_config.num_points,
+            augment=options["augment"],
+            seed=options["seed"],
+        )
+        for protocol in protocols
+    ]
     train_set, val_set = train_val_datasets(caches, pairs, options["val_fraction"])
-    console.print(f"{len(train_set)} training and {len(val_set)} validation pairs ({pairs.protocol})")
+    console.print(f"{len(train_set)} training and {len(val_set)} validation pairs ({' + '.join(protocols)})")
     train_config = TrainConfig(
         epochs=options["epochs"],
         batch_size=options["batch_size"],

@@ -21,6 +21,7 @@ from vcr_odom.data.pairs import (
     pair_indices,
     random_rigid_transform,
     split_frames,
+    train_val_datasets,
 )
 from vcr_odom.data.synth import SynthSequence
 from vcr_odom.errors import ConfigError, DataError
@@ -253,6 +254,22 @@ def test_pair_indices_and_frame_subsets(synth_cache: FrameCache) -> None:
     assert dataset.pairs == [(1, 0), (2, 1)]
     with pytest.raises(ConfigError, match="frames not in the cache"):
         PairDataset(synth_cache, PairConfig(num_points=N), frames=[99])
+
+
+def test_both_protocols_share_one_split(synth_cache: FrameCache) -> None:
+    """Training on both protocols: each gets its pairs, and no validation frame is a training frame."""
+    same_scan = PairConfig(protocol="same-scan", num_points=N)
+    odometry = PairConfig(protocol="odometry", num_points=N, gaps=(1,))
+    train, val = train_val_datasets([synth_cache], [same_scan, odometry], val_fraction=0.25)
+    alone_train, alone_val = train_val_datasets([synth_cache], same_scan, val_fraction=0.25)
+    assert len(train.datasets) == len(val.datasets) == 2
+    assert len(train.datasets[0]) == len(alone_train) and len(val.datasets[0]) == len(alone_val)
+    assert {d.config.protocol for d in train.datasets} == {"same-scan", "odometry"}
+    train_frames = {f for d in train.datasets for pair in d.pairs for f in pair}
+    val_frames = {f for d in val.datasets for pair in d.pairs for f in pair}
+    assert train_frames and val_frames and not train_frames & val_frames
+    with pytest.raises(ConfigError, match="at least one"):
+        train_val_datasets([synth_cache], [])
 
 
 def test_config_validation_names_the_field() -> None:

@@ -523,14 +523,19 @@ class PairDatasets(ConcatDataset):
 
 
 def train_val_datasets(
-    caches: Sequence[FrameCache], config: PairConfig, val_fraction: float = 0.2
+    caches: Sequence[FrameCache], config: PairConfig | Sequence[PairConfig], val_fraction: float = 0.2
 ) -> tuple[PairDatasets, PairDatasets]:
     """Training and validation pairs from each cache's own contiguous frame blocks (:func:`split_frames`),
-    so no validation pair shares a frame with a training pair."""
+    so no validation pair shares a frame with a training pair. Several configurations (e.g. both
+    protocols) give the pairs of each, on the same split."""
+    configs = [config] if isinstance(config, PairConfig) else list(config)
+    if not configs:
+        raise ConfigError("give at least one PairConfig")
     train_sets, val_sets = [], []
     for cache in caches:
         train_rows, val_rows = split_frames(len(cache.frame_indices), val_fraction)
         rows_to_frames = np.asarray(cache.frame_indices)
-        train_sets.append(PairDataset(cache, config, frames=rows_to_frames[train_rows].tolist()))
-        val_sets.append(PairDataset(cache, config, frames=rows_to_frames[val_rows].tolist()))
+        for pair_config in configs:
+            train_sets.append(PairDataset(cache, pair_config, frames=rows_to_frames[train_rows].tolist()))
+            val_sets.append(PairDataset(cache, pair_config, frames=rows_to_frames[val_rows].tolist()))
     return PairDatasets(train_sets), PairDatasets(val_sets)
