@@ -71,6 +71,16 @@ def test_remove_ground_is_deterministic_for_a_seed() -> None:
     np.testing.assert_array_equal(plane_a, plane_b)
 
 
+def test_ransac_on_a_subset_finds_the_plane_of_all_points() -> None:
+    """Hypotheses scored on 2k of 38k points classify (nearly) every point as RANSAC on all of them does."""
+    points, _ = synthetic_scene()
+    subset, plane_subset = remove_ground(points, PreprocessConfig(seed=1, ground_sample_size=2000))
+    full, plane_full = remove_ground(points, PreprocessConfig(seed=1, ground_sample_size=len(points)))
+    assert_true_ground(plane_subset)
+    assert_true_ground(plane_full)
+    assert abs(len(subset) - len(full)) < 0.01 * len(full)
+
+
 def test_remove_ground_rejects_a_dominant_wall() -> None:
     """A facade with more points than the road is found first, rejected (vertical), and the road found next."""
     points, _ = synthetic_scene()
