@@ -378,7 +378,9 @@ def build_frame_cache(
     for row, frame in enumerate(frames):
         cleaned = crop_and_remove_ground(sequence.frame(frame), config)
         for k, seed in enumerate(seeds):
-            sampled = downsample(cleaned, config.n_points, config.method, int(seed), config.voxel_size)
+            sampled = downsample(
+                cleaned, config.n_points, config.method, int(seed), config.voxel_size, config.fps_candidates
+            )
             points[row, k] = sampled[:, :3]
         if progress is not None:
             progress(row + 1, len(frames))
