@@ -24,7 +24,18 @@ from vcr_odom.refine import REFINE_CHOICES
 from vcr_odom.registration import METHOD_NAMES
 from vcr_odom.results import create_result_folder, provenance, write_json
 
-DEFAULT_METHOD = "kiss-icp"
+DEFAULT_METHOD = "vcr"
+DEFAULT_GLOBAL_REFINE = "icp"
+"""The polish a global method (vcr, fpfh) gets unless ``--refine`` says otherwise; README "Choosing the
+polish" gives the measurements behind it. Local methods (ICP, kiss-icp) get none."""
+
+
+GLOBAL_METHODS = ("vcr", "fpfh")
+
+
+def default_refine(method: str) -> str:
+    """``--refine`` when not given: the chosen polish for a global method, none for a local one."""
+    return DEFAULT_GLOBAL_REFINE if method in GLOBAL_METHODS else "none"
 
 
 @click.command("run", epilog=describe_methods())
@@ -39,9 +50,9 @@ DEFAULT_METHOD = "kiss-icp"
 @click.option(
     "--refine",
     type=click.Choice(list(REFINE_CHOICES)),
-    default="none",
-    show_default=True,
-    help="Polish each pairwise estimate: open3d point-to-plane ICP, or kiss-icp against its local map.",
+    default=None,
+    help="Polish each pairwise estimate: open3d point-to-plane ICP, or kiss-icp against its local map. "
+    f"Default: {DEFAULT_GLOBAL_REFINE} for the global methods (vcr, fpfh), none for the local ones.",
 )
 @click.option(
     "--save-map",
@@ -57,7 +68,7 @@ DEFAULT_METHOD = "kiss-icp"
 def run(
     selection: FrameSelection,
     method: str,
-    refine: str,
+    refine: str | None,
     save_map: Path | None,
     map_voxel: float,
     initial_guess: str,
@@ -68,6 +79,7 @@ def run(
     """Estimate the trajectory of a sequence and write it (KITTI + TUM), metrics and a plot."""
     sequence = selection.open()
     indices = selection.indices(sequence)
+    refine = refine or default_refine(method)
     spec = method if refine == "none" else f"{method}+{refine}"
     odometry = build_odometry(spec, InitialGuess(initial_guess), **method_options(method, weights, device))
     out = create_result_folder(results_dir, f"run_{sequence.name}_{spec}")

@@ -61,3 +61,49 @@ def test_cpu_default_batch_is_one_and_bad_batch_is_refused(weights: Path) -> Non
     assert VcrRegistrar(weights, "cpu").batch_size == 1
     with pytest.raises(ConfigError, match="batch_size"):
         VcrRegistrar(weights, "cpu", batch_size=0)
+
+
+def test_collapsed_correspondences_are_reported_degenerate() -> None:
+    from vcr_odom.registration.vcr import MIN_CORRESPONDENCE_SPREAD, correspondence_spread
+
+    rng = np.random.default_rng(0)
+    spread_out = torch.as_tensor(rng.uniform(-20, 20, size=(1, 50, 3)))
+    on_a_line = torch.as_tensor(np.outer(rng.uniform(-20, 20, 50), [1.0, 2.0, 0.5])[None])
+    ratios = correspondence_spread(torch.cat([spread_out, on_a_line])).tolist()
+    assert ratios[0] > 0.3 and ratios[1] < MIN_CORRESPONDENCE_SPREAD
+
+
+def test_a_degenerate_pair_falls_back_to_the_previous_motion_and_is_flagged(synth: SynthSequence) -> None:
+    from vcr_odom.registration.base import DEGENERATE, RegistrationResult
+
+    class Scripted:
+        """Ground truth, except that the third pair reports degenerate correspondences."""
+
+        name = "scripted"
+        needs_initial_guess = False
+
+        def __init__(self) -> None:
+            self.calls = 0
+
+        def prepare(self, points: np.ndarray) -> int:
+            return len(points)
+
+        def register(
+            self, source: int, target: int, initial_guess: np.ndarray | None = None
+        ) -> RegistrationResult:
+            self.calls += 1
+            poses = synth.gt_poses
+            truth = np.linalg.inv(poses[self.calls - 1]) @ poses[self.calls]
+            if self.calls == 3:
+                return RegistrationResult(
+                    np.eye(4), info={"status": DEGENERATE}
+                )  # plausible, but not an estimate
+            return RegistrationResult(truth)
+
+    run = run_odometry(synth, RefinedOdometry(Scripted(), "none"), range(5))
+    assert run.flagged_frames == [3]
+    assert run.per_frame_info[3]["reason"] == DEGENERATE
+    poses = synth.gt_poses
+    previous_motion = np.linalg.inv(poses[1]) @ poses[2]
+    np.testing.assert_allclose(run.poses[3], run.poses[2] @ previous_motion, atol=1e-9)
+    assert np.all(np.isfinite(run.poses))

@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 from vcr_odom.data.base import LidarSequence, Points
 from vcr_odom.errors import ConfigError
 from vcr_odom.geometry import Transform, rotation_angle
-from vcr_odom.registration.base import Registrar, SequentialOdometry
+from vcr_odom.registration.base import FAILED_STATUSES, Registrar, SequentialOdometry
 
 
 class InitialGuess(StrEnum):
@@ -98,8 +98,8 @@ class PairwiseOdometry:
         self.last_info = {"fitness": result.fitness, "inlier_rmse": result.inlier_rmse, **result.info}
         motion = np.asarray(result.transform, dtype=np.float64)
         problem = self.limits.violation(motion, timestamp - self._last_timestamp)
-        if problem is None and result.info.get("status") == "too few points":
-            problem = "too few points to register"
+        if problem is None and result.info.get("status") in FAILED_STATUSES:
+            problem = str(result.info["status"])
         if problem is not None:
             # Fall back to the previous motion (constant velocity): a better guess than any wild jump.
             self.last_info |= {"flagged": True, "reason": problem}

@@ -26,7 +26,7 @@ from vcr_odom.data.base import Points
 from vcr_odom.errors import ConfigError, DataWarning
 from vcr_odom.geometry import Transform, invert, rotation_angle
 from vcr_odom.odometry import MotionLimits
-from vcr_odom.registration.base import BatchRegistrar, Registrar, RegistrationResult
+from vcr_odom.registration.base import FAILED_STATUSES, BatchRegistrar, Registrar, RegistrationResult
 from vcr_odom.registration.kiss import kiss_config
 from vcr_odom.registration.open3d_icp import Open3dIcp
 
@@ -185,6 +185,8 @@ class RefinedOdometry:
         coarse = np.asarray(result.transform, dtype=np.float64)
         self.last_info = {"coarse_fitness": result.fitness, "coarse_inlier_rmse": result.inlier_rmse}
         problem = self.limits.violation(coarse, timestamp - self._last_timestamp)
+        if problem is None and result.info.get("status") in FAILED_STATUSES:
+            problem = str(result.info["status"])
         if problem is not None:
             self.last_info |= {"flagged": True, "reason": problem}
             coarse = self._last_motion

@@ -15,6 +15,11 @@ import numpy as np
 from vcr_odom.data.base import Points
 from vcr_odom.geometry import Transform
 
+DEGENERATE = "degenerate correspondences"
+TOO_FEW_POINTS = "too few points"
+FAILED_STATUSES = (DEGENERATE, TOO_FEW_POINTS)
+"""``info["status"]`` values that mean the transform is not an estimate: odometry falls back and flags."""
+
 
 @dataclass
 class RegistrationResult:

@@ -16,7 +16,7 @@ from vcr_odom.data.base import Points
 from vcr_odom.errors import ConfigError, DataWarning
 from vcr_odom.geometry import Transform
 from vcr_odom.preprocess import crop_range
-from vcr_odom.registration.base import RegistrationResult, identity_guess
+from vcr_odom.registration.base import TOO_FEW_POINTS, RegistrationResult, identity_guess
 
 ICP_VARIANTS = ("point_to_plane", "point_to_point")
 _MIN_POINTS = 10  # fewer than this and a 6-DoF least-squares fit is meaningless
@@ -44,7 +44,7 @@ def too_few_points(
     warnings.warn(
         f"{name}: too few points to register (source, target) = {counts}", DataWarning, stacklevel=3
     )
-    return RegistrationResult(guess, fitness=0.0, info={"status": "too few points", "points": counts})
+    return RegistrationResult(guess, fitness=0.0, info={"status": TOO_FEW_POINTS, "points": counts})
 
 
 @dataclass

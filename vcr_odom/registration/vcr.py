@@ -9,6 +9,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -19,11 +20,15 @@ from vcr_odom.errors import ConfigError
 from vcr_odom.geometry import Transform
 from vcr_odom.model.weights import default_weights_path, load_weights
 from vcr_odom.preprocess import PreprocessConfig, preprocess
-from vcr_odom.registration.base import RegistrationResult
+from vcr_odom.registration.base import DEGENERATE, RegistrationResult
 from vcr_odom.training.runtime import resolve_device
 
 GPU_BATCH_SIZE = 16
 """Pairs per network call on CUDA (``batch_size=None``); 1 on the CPU."""
+
+MIN_CORRESPONDENCE_SPREAD = 0.01
+"""Below this :func:`correspondence_spread` the estimate is reported as ``status: degenerate
+correspondences`` (a street scan's virtual points span tens of metres in two directions: ~0.2-0.6)."""
 
 
 @dataclass
@@ -98,4 +103,19 @@ class VcrRegistrar:
             torch.cat([f.features for f in targets]),
         )
         transforms = output.transform.detach().to("cpu", torch.float64).numpy()
-        return [RegistrationResult(transform.copy()) for transform in transforms]
+        spread = correspondence_spread(output.virtual_points).to("cpu").tolist()
+        results = []
+        for transform, ratio in zip(transforms, spread, strict=True):
+            info: dict[str, Any] = {"correspondence_spread": ratio}
+            if not ratio >= MIN_CORRESPONDENCE_SPREAD:  # also catches NaN
+                info["status"] = DEGENERATE
+            results.append(RegistrationResult(transform.copy(), info=info))
+        return results
+
+
+def correspondence_spread(virtual_points: torch.Tensor) -> torch.Tensor:
+    """Second over first singular value of each pair's centred virtual points ``(B, K, 3)``: near 0
+    when they collapse onto a line or a point, where the SVD's rotation is undetermined."""
+    centred = virtual_points.double() - virtual_points.double().mean(dim=1, keepdim=True)
+    singular = torch.linalg.svdvals(centred)
+    return singular[:, 1] / singular[:, 0].clamp_min(1e-12)
