@@ -21,6 +21,7 @@ from vcr_odom.metrics import trajectory_pair_errors
 from vcr_odom.odometry import InitialGuess, PairwiseOdometry, run_odometry
 from vcr_odom.refine import REFINE_CHOICES, RefinedOdometry
 from vcr_odom.registration import SequentialOdometry, make_method
+from vcr_odom.registration.base import RegistrationResult
 
 
 @pytest.fixture(scope="module")
@@ -88,3 +89,32 @@ def test_refine_beats_global_alone_at_stride_5(kitti_sample_root: Path) -> None:
         assert errors.trans_rmse_m < 0.75 * alone.trans_rmse_m, (refine, errors.trans_rmse_m, alone)
         assert errors.rot_rmse_deg < 0.75 * alone.rot_rmse_deg, (refine, errors.rot_rmse_deg, alone)
         assert all("coarse_fitness" in info for info in run.per_frame_info[1:])
+
+
+def test_kiss_polish_survives_a_float32_guess(synth: SynthSequence) -> None:
+    """A network's pose is orthonormal only to float32 precision; kiss-icp's Sophus aborts the whole
+    process on such a rotation unless the guess is projected onto SE(3) first."""
+    poses = synth.gt_poses
+
+    class Float32Truth:
+        name = "float32-truth"
+        needs_initial_guess = False
+
+        def __init__(self) -> None:
+            self.pair = 0
+
+        def prepare(self, points: np.ndarray) -> int:
+            return len(points)  # anything but None: None means "no previous frame yet"
+
+        def register(
+            self, source: int, target: int, initial_guess: np.ndarray | None = None
+        ) -> RegistrationResult:
+            self.pair += 1
+            truth = np.linalg.inv(poses[self.pair - 1]) @ poses[self.pair]
+            noisy = truth.astype(np.float32).astype(np.float64)
+            noisy[:3, :3] += 1e-7  # no longer a rotation to Sophus' tolerance
+            return RegistrationResult(noisy)
+
+    registrar = Float32Truth()
+    run = run_odometry(synth, RefinedOdometry(registrar, "kiss-icp"), range(4))
+    assert registrar.pair == 3 and len(run.poses) == 4 and np.all(np.isfinite(run.poses))

@@ -24,7 +24,7 @@ from kiss_icp.kiss_icp import KissICP
 
 from vcr_odom.data.base import Points
 from vcr_odom.errors import ConfigError, DataWarning
-from vcr_odom.geometry import Transform, invert, rotation_angle
+from vcr_odom.geometry import Transform, invert, project_to_se3, rotation_angle
 from vcr_odom.odometry import MotionLimits
 from vcr_odom.registration.base import FAILED_STATUSES, BatchRegistrar, Registrar, RegistrationResult
 from vcr_odom.registration.kiss import kiss_config
@@ -55,7 +55,12 @@ class GuidedKissICP(KissICP):
     """
 
     def register_frame_with_guess(self, frame: np.ndarray, initial_guess: Transform) -> Transform:
-        """Register ``frame`` (N x 3, float64) starting from ``initial_guess`` (its pose in the map)."""
+        """Register ``frame`` (N x 3, float64) starting from ``initial_guess`` (its pose in the map).
+
+        The guess is projected onto SE(3) first: kiss-icp's Sophus aborts the whole process on a
+        rotation orthonormal only to float32 precision (a network's SVD output), ~1e-10 is too much.
+        """
+        initial_guess = project_to_se3(initial_guess)
         frame = self.preprocessor.preprocess(frame, np.array([]), self.last_delta)
         source, frame_downsample = self.voxelize(frame)
         sigma = self.adaptive_threshold.get_threshold()

@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 
 from vcr_odom.data.base import Points
 from vcr_odom.errors import ConfigError
-from vcr_odom.geometry import Transform
+from vcr_odom.geometry import Transform, project_to_se3
 from vcr_odom.model.weights import default_weights_path, load_weights
 from vcr_odom.preprocess import PreprocessConfig, preprocess
 from vcr_odom.registration.base import DEGENERATE, RegistrationResult
@@ -102,7 +102,10 @@ class VcrRegistrar:
             torch.cat([f.points for f in targets]),
             torch.cat([f.features for f in targets]),
         )
+        # The network's SVD runs in float32: re-orthonormalise in float64 for chaining and kiss-icp.
         transforms = output.transform.detach().to("cpu", torch.float64).numpy()
+        finite = np.isfinite(transforms).all(axis=(1, 2))
+        transforms[finite] = project_to_se3(transforms[finite])
         spread = correspondence_spread(output.virtual_points).to("cpu").tolist()
         results = []
         for transform, ratio in zip(transforms, spread, strict=True):
