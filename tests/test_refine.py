@@ -16,7 +16,7 @@ import pytest
 from vcr_odom.data import KittiSequence
 from vcr_odom.data.synth import SynthSequence
 from vcr_odom.errors import ConfigError
-from vcr_odom.geometry import normalise_to_first
+from vcr_odom.geometry import make_transform, normalise_to_first, rotation_from_euler_zyx
 from vcr_odom.metrics import trajectory_pair_errors
 from vcr_odom.odometry import InitialGuess, PairwiseOdometry, run_odometry
 from vcr_odom.refine import REFINE_CHOICES, RefinedOdometry
@@ -118,3 +118,39 @@ def test_kiss_polish_survives_a_float32_guess(synth: SynthSequence) -> None:
     registrar = Float32Truth()
     run = run_odometry(synth, RefinedOdometry(registrar, "kiss-icp"), range(4))
     assert registrar.pair == 3 and len(run.poses) == 4 and np.all(np.isfinite(run.poses))
+
+
+def test_icp_polish_also_starts_from_the_last_motion(synth: SynthSequence) -> None:
+    """A global estimate 4° / 3.5 m off on one pair is outside ICP's basin; the constant-velocity start is not,
+    wins on fitness, and the pair comes out right."""
+    poses = synth.gt_poses
+
+    class OneWildPair:
+        name = "one-wild-pair"
+        needs_initial_guess = False
+
+        def __init__(self) -> None:
+            self.pair = 0
+
+        def prepare(self, points: np.ndarray) -> int:
+            return len(points)
+
+        def register(
+            self, source: int, target: int, initial_guess: np.ndarray | None = None
+        ) -> RegistrationResult:
+            self.pair += 1
+            truth = np.linalg.inv(poses[self.pair - 1]) @ poses[self.pair]
+            if self.pair == 3:
+                # 4° and 3.5 m off: within MotionLimits at 10 Hz, but outside ICP's basin here.
+                truth = make_transform(rotation_from_euler_zyx(np.radians(4.0), 0, 0), [-2.5, 2.5, 0]) @ truth
+            return RegistrationResult(truth)
+
+    errors = {}
+    for both in (True, False):
+        method = RefinedOdometry(OneWildPair(), "icp", also_from_last_motion=both)
+        run = run_odometry(synth, method, range(5))
+        errors[both] = trajectory_pair_errors(run.poses, poses[:5]).trans_rmse_m
+        starts = [info.get("icp_start") for info in run.per_frame_info]
+        if both:
+            assert starts[3] == "last motion"
+    assert errors[True] < 0.05 < 0.3 < errors[False]
