@@ -232,7 +232,7 @@ class RefinedOdometry:
             cloud = self.icp.prepare(points)
             result = self.icp.register(cloud, self._previous_icp, coarse)
             start = "global"
-            if self.also_from_last_motion and not np.allclose(coarse, self._last_motion):
+            if self.also_from_last_motion and not _within_basin(coarse, self._last_motion):
                 from_last = self.icp.register(cloud, self._previous_icp, self._last_motion)
                 if from_last.fitness > result.fitness:
                     result, start = from_last, "last motion"
@@ -251,6 +251,16 @@ class RefinedOdometry:
             }
             return invert(self._pose) @ new_pose
         raise AssertionError(f"unhandled refine {self.refine!r}")  # check_refine admits no other value
+
+
+ICP_BASIN_M = 0.5
+ICP_BASIN_DEG = 2.0
+
+
+def _within_basin(a: Transform, b: Transform) -> bool:
+    """Starts this close end in the same ICP result: running ICP from both would only cost time."""
+    change_m, change_deg = _difference(a, b)
+    return change_m < ICP_BASIN_M and change_deg < ICP_BASIN_DEG
 
 
 def _kiss_frame(points: Points) -> np.ndarray:
