@@ -210,10 +210,22 @@ class RefinedOdometry:
             self.stage_seconds["refine"] += time.perf_counter() - started
             change_m, change_deg = _difference(coarse, motion)
             self.last_info |= {"refine_change_m": change_m, "refine_change_deg": change_deg}
+            diverged = self.limits.violation(motion, timestamp - self._last_timestamp)
+            if diverged is not None:
+                motion = self._recover_from_divergence(points, coarse, diverged)
         self._pose = self._pose @ motion
         self._last_motion = motion
         self._previous, self._last_timestamp = prepared, timestamp
         return self._pose.copy()
+
+    def _recover_from_divergence(self, points: Points, coarse: Transform, reason: str) -> Transform:
+        """The polish left the plausible range: keep the (checked) coarse motion, flag the frame and,
+        for kiss-icp, restart its local map here, since a diverged map would drag every later frame."""
+        self.last_info |= {"flagged": True, "reason": f"polish diverged: {reason}"}
+        if self._kiss is not None:
+            self._kiss = GuidedKissICP(self.kiss_config)
+            self._kiss.register_frame_with_guess(_kiss_frame(points), self._pose @ coarse)
+        return coarse
 
     def _start_refiner(self, points: Points) -> None:
         """Frame 0: prepare the ICP cloud, or seed kiss-icp's map at the identity."""
