@@ -35,11 +35,16 @@ def synth() -> SynthSequence:
 
 @pytest.mark.parametrize("refine", ["none", "icp"])
 def test_batched_odometry_equals_one_pair_at_a_time(weights: Path, synth: SynthSequence, refine: str) -> None:
-    """Batch 4 over 6 frames: one chunk that starts the sequence, one that continues it."""
-    single = run_odometry(
-        synth, RefinedOdometry(VcrRegistrar(weights, "cpu", batch_size=1), refine), range(6)
-    )
-    method = RefinedOdometry(VcrRegistrar(weights, "cpu", batch_size=4), refine)
+    """Batch 4 over 6 frames: one chunk that starts the sequence, one that continues it. (ICP runs from
+    the network's estimate only: an untrained network's estimate and the last motion can tie on
+    fitness, and which start wins a tie is not what this test is about.)"""
+
+    def odometry(batch_size: int) -> RefinedOdometry:
+        registrar = VcrRegistrar(weights, "cpu", batch_size=batch_size)
+        return RefinedOdometry(registrar, refine, also_from_last_motion=False)
+
+    single = run_odometry(synth, odometry(1), range(6))
+    method = odometry(4)
     assert method.batch_size == 4
     batched = run_odometry(synth, method, range(6))
     np.testing.assert_allclose(batched.poses, single.poses, atol=1e-4)
