@@ -233,3 +233,13 @@ def test_run_saves_a_map_of_the_registered_scans(synthetic_root, tmp_path):
     # The map is in the frame-0 LiDAR frame: the street surrounds the start, within the sensor's reach.
     extent = np.asarray(cloud.points).max(axis=0) - np.asarray(cloud.points).min(axis=0)
     assert 20.0 < extent[0] < 200.0 and 20.0 < extent[1] < 200.0
+
+
+def test_demo_runs_vcr_with_the_shipped_weights(tmp_path):
+    """`make demo`'s command: no dataset, no --weights; the shipped default weights are found."""
+    output = invoke("demo", "--frames", "12", "--results-dir", str(tmp_path))
+    for method in ("icp10", "kiss-icp", "vcr+icp"):
+        assert method in output
+    assert ((tmp_path / "latest").resolve() / "trajectories.png").is_file()
+    report = json.loads(((tmp_path / "latest").resolve() / "compare.json").read_text())
+    assert report["vcr+icp"]["pairs"]["success_rate"] > 0.9
