@@ -54,9 +54,21 @@ class GuidedKissICP(KissICP):
     """kiss-icp's ``register_frame`` with the initial guess supplied by the caller.
 
     Every step is kiss-icp's own library piece, in its order: preprocess, voxelize, adaptive threshold,
-    ``align_points_to_map``, model-deviation update (so the threshold keeps adapting, here to the
-    error of the guess), map update. Only the constant-velocity prediction is replaced.
+    ``align_points_to_map``, model-deviation update, map update. Only the starting point of the
+    registration is replaced. The threshold still adapts to the deviation from kiss-icp's own
+    constant-velocity prediction, as kiss-icp's does: it models how far the motion departs from that
+    model, whatever the start (fed the learned guess's error instead, it stayed inflated for hundreds
+    of frames and let the registration slide along synthetic facades).
     """
+
+    def seed(self, frame: np.ndarray, pose: Transform, last_delta: Transform) -> None:
+        """Start (or restart) the local map with ``frame`` at ``pose``, without registering it against
+        an empty map; ``last_delta`` is the motion into this frame (the next prediction's velocity)."""
+        frame = self.preprocessor.preprocess(frame, np.array([]), np.eye(4))
+        _, frame_downsample = self.voxelize(frame)
+        pose = project_to_se3(pose)
+        self.local_map.update(frame_downsample, pose)
+        self.last_pose, self.last_delta = pose, project_to_se3(last_delta)
 
     def register_frame_with_guess(self, frame: np.ndarray, initial_guess: Transform) -> Transform:
         """Register ``frame`` (N x 3, float64) starting from ``initial_guess`` (its pose in the map).
@@ -75,7 +87,8 @@ class GuidedKissICP(KissICP):
             max_correspondance_distance=3 * sigma,
             kernel=sigma,
         )
-        model_deviation = np.linalg.inv(initial_guess) @ new_pose
+        prediction = self.last_pose @ self.last_delta
+        model_deviation = np.linalg.inv(prediction) @ new_pose
         self.adaptive_threshold.update_model_deviation(model_deviation)
         self.local_map.update(frame_downsample, new_pose)
         self.last_delta = np.linalg.inv(self.last_pose) @ new_pose
@@ -230,7 +243,7 @@ class RefinedOdometry:
         self.last_info |= {"flagged": True, "reason": f"polish diverged: {reason}"}
         if self._kiss is not None:
             self._kiss = GuidedKissICP(self.kiss_config)
-            self._kiss.register_frame_with_guess(_kiss_frame(points), self._pose @ coarse)
+            self._kiss.seed(_kiss_frame(points), self._pose @ coarse, coarse)
         return coarse
 
     def _start_refiner(self, points: Points) -> None:
@@ -241,7 +254,7 @@ class RefinedOdometry:
         if self.refine == "icp":
             self._previous_icp = self.icp.prepare(points)
         elif self._kiss is not None:
-            self._kiss.register_frame_with_guess(_kiss_frame(points), np.eye(4))
+            self._kiss.seed(_kiss_frame(points), np.eye(4), np.eye(4))
         self.stage_seconds["refine"] += time.perf_counter() - started
 
     def _refine(self, points: Points, coarse: Transform) -> Transform:
