@@ -37,7 +37,8 @@ from vcr_odom.registration.open3d_icp import Open3dIcp
 REFINE_CHOICES: dict[str, str] = {
     "none": "the global registrar's estimate as it is",
     "icp": "open3d point-to-plane ICP on the two frames, started from the global estimate",
-    "kiss-icp": "kiss-icp's adaptive-threshold registration to its local map, guessed by the global estimate",
+    "kiss-icp": "kiss-icp's adaptive-threshold registration to its local map, guessed by the global estimate "
+    "(experimental: diverged on a long synthetic drive, see README)",
 }
 """``--refine`` value -> one-line description (for ``--help`` and error messages)."""
 
