@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scripted_registrar import ScriptedRegistrar
 
 from vcr_odom.data import KittiSequence
 from vcr_odom.data.synth import SynthSequence
@@ -19,6 +20,7 @@ from vcr_odom.errors import ConfigError
 from vcr_odom.geometry import make_transform, normalise_to_first, rotation_from_euler_zyx
 from vcr_odom.metrics import trajectory_pair_errors
 from vcr_odom.odometry import InitialGuess, PairwiseOdometry, run_odometry
+from vcr_odom.pipeline import run_summary
 from vcr_odom.refine import REFINE_CHOICES, RefinedOdometry
 from vcr_odom.registration import SequentialOdometry, make_method
 from vcr_odom.registration.base import RegistrationResult
@@ -94,28 +96,13 @@ def test_refine_beats_global_alone_at_stride_5(kitti_sample_root: Path) -> None:
 def test_kiss_polish_survives_a_float32_guess(synth: SynthSequence) -> None:
     """A network's pose is orthonormal only to float32 precision; kiss-icp's Sophus aborts the whole
     process on such a rotation unless the guess is projected onto SE(3) first."""
-    poses = synth.gt_poses
 
-    class Float32Truth:
-        name = "float32-truth"
-        needs_initial_guess = False
+    def float32_noise(pair: int, truth: np.ndarray) -> RegistrationResult:
+        noisy = truth.astype(np.float32).astype(np.float64)
+        noisy[:3, :3] += 1e-7  # no longer a rotation to Sophus' tolerance
+        return RegistrationResult(noisy)
 
-        def __init__(self) -> None:
-            self.pair = 0
-
-        def prepare(self, points: np.ndarray) -> int:
-            return len(points)  # anything but None: None means "no previous frame yet"
-
-        def register(
-            self, source: int, target: int, initial_guess: np.ndarray | None = None
-        ) -> RegistrationResult:
-            self.pair += 1
-            truth = np.linalg.inv(poses[self.pair - 1]) @ poses[self.pair]
-            noisy = truth.astype(np.float32).astype(np.float64)
-            noisy[:3, :3] += 1e-7  # no longer a rotation to Sophus' tolerance
-            return RegistrationResult(noisy)
-
-    registrar = Float32Truth()
+    registrar = ScriptedRegistrar(synth.gt_poses, float32_noise)
     run = run_odometry(synth, RefinedOdometry(registrar, "kiss-icp"), range(4))
     assert registrar.pair == 3 and len(run.poses) == 4 and np.all(np.isfinite(run.poses))
 
@@ -125,32 +112,18 @@ def test_icp_polish_also_starts_from_the_last_motion(synth: SynthSequence) -> No
     wins on fitness, and the pair comes out right."""
     poses = synth.gt_poses
 
-    class OneWildPair:
-        name = "one-wild-pair"
-        needs_initial_guess = False
-
-        def __init__(self) -> None:
-            self.pair = 0
-
-        def prepare(self, points: np.ndarray) -> int:
-            return len(points)
-
-        def register(
-            self, source: int, target: int, initial_guess: np.ndarray | None = None
-        ) -> RegistrationResult:
-            self.pair += 1
-            truth = np.linalg.inv(poses[self.pair - 1]) @ poses[self.pair]
-            if self.pair == 3:
-                # 4° and 3.5 m off: within MotionLimits at 10 Hz, but outside ICP's basin here.
-                truth = make_transform(rotation_from_euler_zyx(np.radians(4.0), 0, 0), [-2.5, 2.5, 0]) @ truth
-            return RegistrationResult(truth)
+    def wild_third_pair(pair: int, truth: np.ndarray) -> RegistrationResult:
+        if pair == 3:  # 4° and 3.5 m off: within MotionLimits at 10 Hz, but outside ICP's basin here.
+            truth = make_transform(rotation_from_euler_zyx(np.radians(4.0), 0, 0), [-2.5, 2.5, 0]) @ truth
+        return RegistrationResult(truth)
 
     errors = {}
     for both in (True, False):
-        method = RefinedOdometry(OneWildPair(), "icp", also_from_last_motion=both)
+        method = RefinedOdometry(ScriptedRegistrar(poses, wild_third_pair), "icp", also_from_last_motion=both)
         run = run_odometry(synth, method, range(5))
         errors[both] = trajectory_pair_errors(run.poses, poses[:5]).trans_rmse_m
         starts = [info.get("icp_start") for info in run.per_frame_info]
         if both:
             assert starts[3] == "last motion"
+            assert run_summary(run)["polish_starts"]["last motion"] >= 1  # what metrics.json reports
     assert errors[True] < 0.05 < 0.3 < errors[False]

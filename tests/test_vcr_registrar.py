@@ -79,36 +79,21 @@ def test_collapsed_correspondences_are_reported_degenerate() -> None:
 
 
 def test_a_degenerate_pair_falls_back_to_the_previous_motion_and_is_flagged(synth: SynthSequence) -> None:
+    from scripted_registrar import ScriptedRegistrar
+
     from vcr_odom.registration.base import DEGENERATE, RegistrationResult
 
-    class Scripted:
-        """Ground truth, except that the third pair reports degenerate correspondences."""
+    def degenerate_third_pair(pair: int, truth: np.ndarray) -> RegistrationResult:
+        if pair == 3:  # plausible, but not an estimate
+            return RegistrationResult(np.eye(4), info={"status": DEGENERATE})
+        return RegistrationResult(truth)
 
-        name = "scripted"
-        needs_initial_guess = False
-
-        def __init__(self) -> None:
-            self.calls = 0
-
-        def prepare(self, points: np.ndarray) -> int:
-            return len(points)
-
-        def register(
-            self, source: int, target: int, initial_guess: np.ndarray | None = None
-        ) -> RegistrationResult:
-            self.calls += 1
-            poses = synth.gt_poses
-            truth = np.linalg.inv(poses[self.calls - 1]) @ poses[self.calls]
-            if self.calls == 3:
-                return RegistrationResult(
-                    np.eye(4), info={"status": DEGENERATE}
-                )  # plausible, but not an estimate
-            return RegistrationResult(truth)
-
-    run = run_odometry(synth, RefinedOdometry(Scripted(), "none"), range(5))
+    poses = synth.gt_poses
+    run = run_odometry(
+        synth, RefinedOdometry(ScriptedRegistrar(poses, degenerate_third_pair), "none"), range(5)
+    )
     assert run.flagged_frames == [3]
     assert run.per_frame_info[3]["reason"] == DEGENERATE
-    poses = synth.gt_poses
     previous_motion = np.linalg.inv(poses[1]) @ poses[2]
     np.testing.assert_allclose(run.poses[3], run.poses[2] @ previous_motion, atol=1e-9)
     assert np.all(np.isfinite(run.poses))

@@ -5,6 +5,7 @@ The CLI only parses options and prints; everything a notebook user would call li
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Callable, Mapping, Sequence
 from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass
@@ -167,10 +168,18 @@ def run_summary(run: OdometryRun) -> dict[str, Any]:
             for index, info in zip(run.frame_indices, run.per_frame_info, strict=False)
             if info.get("flagged")
         },
+        "polish_starts": polish_starts(run),
         "wall_seconds": run.wall_seconds,
         "frames_per_second": run.frames_per_second,
         "stage_seconds": run.stage_seconds,
     }
+
+
+def polish_starts(run: OdometryRun) -> dict[str, int]:
+    """How often each start won the polish (``icp_start`` / ``kiss_start`` of the frames): whether the
+    global estimate or the motion prior carried a run."""
+    starts = (info.get("icp_start") or info.get("kiss_start") for info in run.per_frame_info)
+    return dict(Counter(start for start in starts if start))
 
 
 @dataclass
