@@ -1,0 +1,70 @@
+"""The model card's pair tables: every row on the same pairs, including rows `compare` cannot build.
+
+Not a test. `compare --protocol pairs` builds methods by name with default options; this harness adds
+FPFH with a descriptor radius tuned for sparse clouds and any number of VCR weight files:
+
+    .venv/bin/python benchmarks/pair_tables.py --data-root ../shared/data/kitti-sample --seq 00 \\
+        --frames 40:60 --weights weights/vcr-default.safetensors \\
+        --weights weights/vcr-default-same-scan.safetensors
+
+prints one markdown table per pair kind (same-scan, consecutive).
+"""
+
+from __future__ import annotations
+
+import argparse
+import warnings
+from pathlib import Path
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--data-root", type=Path, required=True)
+    parser.add_argument("--seq", default="00")
+    parser.add_argument("--frames", default=None, help="A:B (B exclusive)")
+    parser.add_argument("--points", type=int, default=512, help="points per cloud (the VCR weights' N)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--weights", type=Path, action="append", default=[], help="VCR weights (repeat)")
+    parser.add_argument("--fpfh-radius-factor", type=float, default=10.0, help="the tuned FPFH row")
+    args = parser.parse_args()
+    warnings.simplefilter("ignore")
+
+    from vcr_odom.data import open_sequence
+    from vcr_odom.odometry import select_frames
+    from vcr_odom.pair_benchmark import evaluate_pair_protocol, pair_sets
+    from vcr_odom.registration import make_method
+    from vcr_odom.registration.polish import PolishedRegistrar, SparseIcp
+
+    sequence = open_sequence(args.seq, data_root=args.data_root)
+    frames = select_frames(len(sequence), args.frames)
+
+    def tuned_fpfh():
+        method = make_method("fpfh", feature_radius_factor=args.fpfh_radius_factor)
+        method.name = f"fpfh(r x{args.fpfh_radius_factor:g})"
+        return method
+
+    def vcr(path: Path):
+        method = make_method("vcr", weights=path, device="cpu")
+        method.name = f"vcr ({path.stem})"
+        return method
+
+    for kind, pairs in pair_sets(sequence, frames, args.points, args.seed).items():
+        methods = ["icp10", "fpfh", tuned_fpfh(), *[vcr(w) for w in args.weights]]
+        methods += [PolishedRegistrar(tuned_fpfh(), SparseIcp())]
+        methods += [PolishedRegistrar(vcr(w), SparseIcp()) for w in args.weights]
+        results = evaluate_pair_protocol(methods, pairs)
+        print(f"\n{kind}: {len(pairs)} pairs of {args.points} points, frames {frames[0]}-{frames[-1]}\n")
+        print("| method | rot RMSE / MAE [deg] | trans RMSE / MAE [m] | success | ms / pair |")
+        print("|---|---|---|---|---|")
+        for name, result in results.items():
+            e = result.errors
+            print(
+                f"| {name} | {e.rot_rmse_deg:.3f} / {e.rot_mae_deg:.3f} | {e.trans_rmse_m:.3f} / "
+                f"{e.trans_mae_m:.3f} | {100 * e.success_rate:.0f} % | {result.ms_per_pair_mean:.1f} |"
+            )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,65 @@
+"""Validation RMSE of weight files on the held-out blocks of frame caches, per pair protocol.
+
+Not a test. The same split as training (`train_val_datasets`: a contiguous 20 % block of each cache),
+transforms drawn with a fixed seed so that every file sees the same pairs:
+
+    .venv/bin/python benchmarks/validation_scores.py --cache kitti_0_40.npz --cache synth_21.npz ... \\
+        weights/vcr-default.safetensors weights/vcr-default-same-scan.safetensors
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from vcr_odom.data.pairs import FrameCache, PairConfig, train_val_datasets
+from vcr_odom.model.weights import load_weights
+from vcr_odom.training.tasks import pose_errors
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("weights", type=Path, nargs="+")
+    parser.add_argument("--cache", type=Path, action="append", required=True, help="frame cache (repeat)")
+    parser.add_argument("--val-fraction", type=float, default=0.2)
+    parser.add_argument("--seed", type=int, default=123)
+    args = parser.parse_args()
+    caches = [FrameCache.load(path) for path in args.cache]
+    for path in args.weights:
+        model, config, _ = load_weights(path)
+        for protocol in ("same-scan", "odometry"):
+            pairs = PairConfig(
+                protocol=protocol,
+                num_points=config.num_points,
+                augment=protocol == "odometry",
+                seed=args.seed,
+            )
+            _, val = train_val_datasets(caches, pairs, args.val_fraction)
+            val.set_epoch(0)
+            rotation, translation = [], []
+            with torch.inference_mode():
+                for start in range(0, len(val), 16):
+                    batch = [val[i] for i in range(start, min(len(val), start + 16))]
+                    transform = torch.stack([b["transform"] for b in batch]).float()
+                    out = model(
+                        torch.stack([b["source"] for b in batch]), torch.stack([b["target"] for b in batch])
+                    )
+                    r, t = pose_errors(
+                        out.rotation, out.translation, transform[:, :3, :3], transform[:, :3, 3]
+                    )
+                    rotation += r.tolist()
+                    translation += t.tolist()
+            r, t = np.array(rotation), np.array(translation)
+            print(
+                f"{path.name} {protocol}: {len(r)} pairs, rot RMSE {np.sqrt((r**2).mean()):.3f} deg, "
+                f"trans RMSE {np.sqrt((t**2).mean()):.3f} m, success {100 * np.mean((r < 2) & (t < 0.5)):.0f} %"
+            )
+
+
+if __name__ == "__main__":
+    main()
