@@ -90,11 +90,14 @@ def compare(
     initial_guess: str,
     weights: Path | None,
     device: str,
+    vcr_passes: int | None,
     results_dir: Path,
 ) -> None:
     """Run the methods on the same frames and print one table per protocol."""
     methods = list(dict.fromkeys(baselines or DEFAULT_BASELINES))
-    options = {spec: method_options(parse_method_spec(spec)[0], weights, device) for spec in methods}
+    options = {
+        spec: method_options(parse_method_spec(spec)[0], weights, device, vcr_passes) for spec in methods
+    }
     if pair_points is None:
         pair_points = default_pair_points(methods, weights)
     kinds = PAIR_KINDS if pair_kind == "both" else (pair_kind,)

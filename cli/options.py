@@ -137,7 +137,14 @@ def describe_methods() -> str:
 
 
 def vcr_options(function: F) -> F:
-    """``--weights`` and ``--device`` for the learned method (ignored by the classical ones)."""
+    """``--weights``, ``--device`` and ``--vcr-passes`` for the learned method (ignored by the others)."""
+    function = click.option(
+        "--vcr-passes",
+        type=click.IntRange(min=1),
+        default=None,
+        help="VCR-Net passes per pair: each pass after the first registers the source moved by the "
+        "estimate so far. Default: 2 unpolished, 1 with a polish (+icp, +kiss-icp).",
+    )(function)
     function = click.option(
         "--device",
         type=click.Choice(["auto", "cpu", "cuda"]),
@@ -152,5 +159,11 @@ def vcr_options(function: F) -> F:
     )(function)
 
 
-def method_options(method: str, weights: Path | None, device: str) -> dict[str, Any]:
-    return {"weights": weights, "device": device} if method == "vcr" else {}
+def method_options(
+    method: str, weights: Path | None, device: str, passes: int | None = None
+) -> dict[str, Any]:
+    """Constructor options of ``method`` from the VCR options (``passes`` only when given, so that
+    the polished/unpolished default applies otherwise)."""
+    if method != "vcr":
+        return {}
+    return {"weights": weights, "device": device} | ({"passes": passes} if passes is not None else {})

@@ -74,6 +74,7 @@ def run(
     initial_guess: str,
     weights: Path | None,
     device: str,
+    vcr_passes: int | None,
     results_dir: Path,
 ) -> None:
     """Estimate the trajectory of a sequence and write it (KITTI + TUM), metrics and a plot."""
@@ -81,7 +82,9 @@ def run(
     indices = selection.indices(sequence)
     refine = refine or default_refine(method)
     spec = method if refine == "none" else f"{method}+{refine}"
-    odometry = build_odometry(spec, InitialGuess(initial_guess), **method_options(method, weights, device))
+    odometry = build_odometry(
+        spec, InitialGuess(initial_guess), **method_options(method, weights, device, vcr_passes)
+    )
     out = create_result_folder(results_dir, f"run_{sequence.name}_{spec}")
     config = {
         "command": "run",
@@ -92,6 +95,7 @@ def run(
         "initial_guess": initial_guess,
         "weights": weights,
         "device": device,
+        "vcr_passes": vcr_passes,
     }
     write_json(out / "config.json", provenance(config))
     with frame_progress(f"{spec} on {sequence.name}", len(indices)) as advance:

@@ -97,3 +97,36 @@ def test_a_degenerate_pair_falls_back_to_the_previous_motion_and_is_flagged(synt
     previous_motion = np.linalg.inv(poses[1]) @ poses[2]
     np.testing.assert_allclose(run.poses[3], run.poses[2] @ previous_motion, atol=1e-9)
     assert np.all(np.isfinite(run.poses))
+
+
+def test_a_second_pass_registers_the_source_moved_by_the_first(weights: Path) -> None:
+    """passes=2 is pass 1, then pass 1 again on the source moved by its estimate, composed."""
+    rng = np.random.default_rng(3)
+    source = rng.uniform(-20, 20, size=(SMALL.num_points, 3)).astype(np.float32)
+    target = (source @ _yaw(0.3).T + np.array([1.0, -0.5, 0.1])).astype(np.float32)
+    one_pass = VcrRegistrar(weights, "cpu", passes=1)
+    first = one_pass.register(one_pass.prepare(source), one_pass.prepare(target)).transform
+    moved = (source @ first[:3, :3].T + first[:3, 3]).astype(np.float32)
+    second = one_pass.register(one_pass.prepare(moved), one_pass.prepare(target)).transform
+    two_pass = VcrRegistrar(weights, "cpu", passes=2)
+    result = two_pass.register(two_pass.prepare(source), two_pass.prepare(target))
+    np.testing.assert_allclose(result.transform, second @ first, atol=1e-4)
+    assert result.info["passes"] == 2
+    with pytest.raises(ConfigError, match="passes"):
+        VcrRegistrar(weights, "cpu", passes=0)
+
+
+def test_a_polished_vcr_runs_one_pass_unless_told(weights: Path) -> None:
+    from vcr_odom.registration import make_polished_method
+    from vcr_odom.registration.vcr import DEFAULT_PASSES, POLISHED_PASSES
+
+    def passes(polished: bool, **options: object) -> int:
+        return make_polished_method("vcr", polished, weights=weights, device="cpu", **options).passes
+
+    assert (passes(False), passes(True)) == (DEFAULT_PASSES, POLISHED_PASSES) == (2, 1)
+    assert passes(True, passes=3) == 3
+
+
+def _yaw(angle: float) -> np.ndarray:
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])

@@ -163,7 +163,7 @@ def _materialise(dataset_or_pairs: PairDataset | Iterable[Pair]) -> list[dict[st
 
 
 def _build(name: str, options: Mapping[str, Mapping[str, Any]]) -> Registrar:
-    from vcr_odom.registration import make_method
+    from vcr_odom.registration import make_polished_method
     from vcr_odom.registration.polish import polished_for_pairs
 
     key = name.strip().lower()
@@ -174,8 +174,9 @@ def _build(name: str, options: Mapping[str, Mapping[str, Any]]) -> Registrar:
             "pairwise registrar: it has no meaning on independent pairs; use it in the odometry "
             "comparison instead"
         )
-    method = make_method(base, **dict(options.get(base, options.get(name, {}))))
-    if polish and polish != "none":
+    polished = bool(polish) and polish != "none"
+    method = make_polished_method(base, polished, **dict(options.get(base, options.get(name, {}))))
+    if polished:
         return polished_for_pairs(method, polish)  # type: ignore[arg-type]
     return method  # type: ignore[return-value]
 

@@ -24,7 +24,7 @@ from vcr_odom.metrics import EvaluationReport, evaluate
 from vcr_odom.odometry import InitialGuess, OdometryRun, PairwiseOdometry, run_odometry
 from vcr_odom.plots import plot_trajectories
 from vcr_odom.refine import RefinedOdometry, check_refine
-from vcr_odom.registration import METHOD_NAMES, make_method
+from vcr_odom.registration import METHOD_NAMES, make_polished_method
 from vcr_odom.registration.base import BatchRegistrar, Registrar, SequentialOdometry
 from vcr_odom.results import write_json
 
@@ -45,7 +45,7 @@ def build_odometry(
 ) -> SequentialOdometry:
     """A method by its CLI name (``name`` or ``name+refine``), wrapped for the frame loop when pairwise."""
     name, refine = parse_method_spec(method_spec)
-    method = make_method(name, **options)
+    method = make_polished_method(name, refine != "none", **options)
     if isinstance(method, SequentialOdometry):
         if refine != "none":
             raise ConfigError(
