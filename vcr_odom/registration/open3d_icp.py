@@ -23,14 +23,21 @@ _MIN_POINTS = 10  # fewer than this and a 6-DoF least-squares fit is meaningless
 
 
 def prepare_cloud(
-    points: Points, min_range: float, max_range: float, voxel_size: float, normals: bool
+    points: Points,
+    min_range: float,
+    max_range: float,
+    voxel_size: float,
+    normals: bool,
+    normals_max_nn: int = 10,
 ) -> o3d.geometry.PointCloud:
-    """Crop, voxel down-sample (ground kept: it pins z, roll and pitch) and optionally estimate normals."""
+    """Crop, voxel down-sample (ground kept: it pins z, roll and pitch) and optionally estimate normals
+    from at most ``normals_max_nn`` neighbours within two voxels."""
     cropped = crop_range(points, min_range, max_range)
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(cropped[:, :3].astype(np.float64)))
     cloud = cloud.voxel_down_sample(voxel_size)
     if normals and len(cloud.points) >= 3:
-        cloud.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=2.0 * voxel_size, max_nn=30))
+        search = o3d.geometry.KDTreeSearchParamHybrid(radius=2.0 * voxel_size, max_nn=normals_max_nn)
+        cloud.estimate_normals(search)
     return cloud
 
 
@@ -59,6 +66,9 @@ class Open3dIcp:
     10 here: both give 2.3 cm / 0.075° RMSE per pair, ~50 ms/pair with preparation).
     Point-to-point is markedly worse on real scans (~8-10 cm RMSE): ring patterns on the road drag it.
     Ranges as in pre-processing (2-80 m: no ego-car returns, no sparse far field).
+    ``normals_max_nn=10``: at 0.5 m voxels the 2-voxel ball holds few more than 10 points; against 30,
+    the VCR + ICP odometry on kitti-sample at strides 1, 5 and 10 kept its per-pair RMSE (within
+    0.007°, 1 mm) and end-point drift (within 0.03 %), and normals cost ~6 ms less per frame.
     """
 
     variant: str = "point_to_plane"
@@ -69,6 +79,7 @@ class Open3dIcp:
     max_correspondence_distance: float = 1.0
     min_range: float = 2.0
     max_range: float = 80.0
+    normals_max_nn: int = 10
     name: str = ""
     needs_initial_guess: bool = True
 
@@ -77,13 +88,18 @@ class Open3dIcp:
             raise ConfigError(f"variant must be one of {', '.join(ICP_VARIANTS)}; got {self.variant!r}")
         if self.max_iterations < 1 or self.voxel_size <= 0 or self.max_correspondence_distance <= 0:
             raise ConfigError("need max_iterations >= 1, voxel_size > 0 and max_correspondence_distance > 0")
+        if self.normals_max_nn < 3:
+            raise ConfigError(
+                f"normals_max_nn must be >= 3 (a plane needs 3 points); got {self.normals_max_nn}"
+            )
         if not self.name:
             short = "p2l" if self.variant == "point_to_plane" else "p2p"
             self.name = f"icp-{short}({self.max_iterations})"
 
     def prepare(self, points: Points) -> o3d.geometry.PointCloud:
+        normals = self.variant == "point_to_plane"
         return prepare_cloud(
-            points, self.min_range, self.max_range, self.voxel_size, self.variant == "point_to_plane"
+            points, self.min_range, self.max_range, self.voxel_size, normals, self.normals_max_nn
         )
 
     def register(
