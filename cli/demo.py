@@ -11,7 +11,7 @@ from vcr_odom.cli.options import FrameSelection
 from vcr_odom.cli.progress import console
 from vcr_odom.data.synth import generate_sequence
 
-DEMO_METHODS = ["icp10", "icp", "kiss-icp", "vcr+icp"]
+DEMO_METHODS = ["icp10", "icp", "kiss-icp", "vcr+icp", "vcr+kiss-icp"]
 
 
 @click.command("demo")
@@ -37,7 +37,7 @@ DEMO_METHODS = ["icp10", "icp", "kiss-icp", "vcr+icp"]
     help="Where the synthetic data and the result folder go.",
 )
 def demo(frames: int, seed: int, results_dir: Path) -> None:
-    """Generate a synthetic KITTI-layout sequence, run VCR-Net + ICP and the baselines on it, print a table and write a plot."""
+    """Generate a synthetic KITTI-layout sequence, run VCR-Net with both polishes and the baselines on it, print a table and write a plot."""
     data_root = results_dir / "demo-data"
     console.print(f"Generating {frames} synthetic frames (seed {seed}) in {data_root} ...")
     generate_sequence(data_root, seq="00", frames=frames, seed=seed)

@@ -25,7 +25,7 @@ from vcr_odom.registration import METHOD_NAMES
 from vcr_odom.results import create_result_folder, provenance, write_json
 
 DEFAULT_METHOD = "vcr"
-DEFAULT_GLOBAL_REFINE = "icp"
+DEFAULT_GLOBAL_REFINE = "kiss-icp"
 """The polish a global method (vcr, fpfh) gets unless ``--refine`` says otherwise; README "Choosing the
 polish" gives the measurements behind it. Local methods (ICP, kiss-icp) get none."""
 

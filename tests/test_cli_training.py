@@ -56,8 +56,8 @@ def test_cache_train_resume_and_run_with_the_trained_weights(synthetic_root, tmp
         tmp_path / "results",
     )
     metrics = json.loads((tmp_path / "results" / "latest" / "metrics.json").read_text())
-    # A global method gets the ICP polish unless --refine says otherwise.
-    assert metrics["run"]["method"] == "vcr+icp" and metrics["run"]["frames_processed"] == 4
+    # A global method gets the kiss-icp polish unless --refine says otherwise.
+    assert metrics["run"]["method"] == "vcr+kiss-icp" and metrics["run"]["frames_processed"] == 4
 
     output = invoke(
         "compare",

@@ -238,8 +238,9 @@ def test_run_saves_a_map_of_the_registered_scans(synthetic_root, tmp_path):
 def test_demo_runs_vcr_with_the_shipped_weights(tmp_path):
     """`make demo`'s command: no dataset, no --weights; the shipped default weights are found."""
     output = invoke("demo", "--frames", "12", "--results-dir", str(tmp_path))
-    for method in ("icp10", "kiss-icp", "vcr+icp"):
+    for method in ("icp10", "kiss-icp", "vcr+icp", "vcr+kiss-icp"):
         assert method in output
     assert ((tmp_path / "latest").resolve() / "trajectories.png").is_file()
     report = json.loads(((tmp_path / "latest").resolve() / "compare.json").read_text())
     assert report["vcr+icp"]["pairs"]["success_rate"] > 0.9
+    assert report["vcr+kiss-icp"]["pairs"]["success_rate"] > 0.9
