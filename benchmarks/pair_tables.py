@@ -1,7 +1,8 @@
 """The model card's pair tables: every row on the same pairs, including rows `compare` cannot build.
 
 Not a test. `compare --protocol pairs` builds methods by name with default options; this harness adds
-FPFH with a descriptor radius tuned for sparse clouds and any number of VCR weight files:
+FPFH with a descriptor radius tuned for sparse clouds, and any number of VCR weight files, each with
+one and with two network passes:
 
     .venv/bin/python benchmarks/pair_tables.py --data-root ../shared/data/kitti-sample --seq 00 \\
         --frames 40:60 --weights weights/vcr-default.safetensors \\
@@ -36,6 +37,7 @@ def main() -> None:
     from vcr_odom.pair_benchmark import evaluate_pair_protocol, pair_sets
     from vcr_odom.registration import make_method
     from vcr_odom.registration.polish import PolishedRegistrar, SparseIcp
+    from vcr_odom.registration.vcr import POLISHED_PASSES
 
     sequence = open_sequence(args.seq, data_root=args.data_root)
     frames = select_frames(len(sequence), args.frames)
@@ -45,15 +47,16 @@ def main() -> None:
         method.name = f"fpfh(r x{args.fpfh_radius_factor:g})"
         return method
 
-    def vcr(path: Path):
-        method = make_method("vcr", weights=path, device="cpu")
-        method.name = f"vcr ({path.stem})"
+    def vcr(path: Path, passes: int):
+        method = make_method("vcr", weights=path, device="cpu", passes=passes)
+        method.name = f"vcr ({path.stem}, {passes} pass{'es' if passes > 1 else ''})"
         return method
 
     for kind, pairs in pair_sets(sequence, frames, args.points, args.seed).items():
-        methods = ["icp10", "fpfh", tuned_fpfh(), *[vcr(w) for w in args.weights]]
+        methods = ["icp10", "fpfh", tuned_fpfh(), *[vcr(w, p) for w in args.weights for p in (1, 2)]]
         methods += [PolishedRegistrar(tuned_fpfh(), SparseIcp())]
-        methods += [PolishedRegistrar(vcr(w), SparseIcp()) for w in args.weights]
+        # As compare's vcr+icp: one network pass before the polish (POLISHED_PASSES).
+        methods += [PolishedRegistrar(vcr(w, POLISHED_PASSES), SparseIcp()) for w in args.weights]
         results = evaluate_pair_protocol(methods, pairs)
         print(f"\n{kind}: {len(pairs)} pairs of {args.points} points, frames {frames[0]}-{frames[-1]}\n")
         print("| method | rot RMSE / MAE [deg] | trans RMSE / MAE [m] | success | ms / pair |")
