@@ -122,7 +122,7 @@ def network_throughput(args: argparse.Namespace, data_root: Path) -> list[dict]:
     sequence = open_sequence(args.seq, data_root=data_root)
     indices = select_frames(len(sequence), args.frames, args.stride)
     largest = max(args.network_batch)
-    clouds = [registrar._network_input(sequence.frame(i)) for i in indices[: largest + 1]]
+    clouds = [registrar.network_input(sequence.frame(i)) for i in indices[: largest + 1]]
     while len(clouds) < largest + 1:
         clouds += clouds[: largest + 1 - len(clouds)]
     points = torch.as_tensor(np.stack(clouds), device=registrar.device)

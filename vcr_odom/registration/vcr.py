@@ -81,7 +81,7 @@ class VcrRegistrar:
         # Pre-processing as in training: ground removed, exactly N points by farthest point sampling.
         self.preprocess_config = PreprocessConfig(n_points=self.config.num_points, method="fps", seed=seed)
 
-    def _network_input(self, points: Points) -> NDArray[np.float32]:
+    def network_input(self, points: Points) -> NDArray[np.float32]:
         """Exactly N points. A cloud of exactly N points is taken as already pre-processed (the pairs
         protocol's clouds are): ground removal and sampling again would only drop or shuffle points."""
         if len(points) == self.config.num_points:
@@ -97,7 +97,7 @@ class VcrRegistrar:
     @torch.inference_mode()
     def prepare_batch(self, frames: Sequence[Points]) -> list[VcrFrame]:
         """Pre-process each frame (CPU), then encode them all in one forward pass."""
-        stacked = np.stack([self._network_input(points) for points in frames])
+        stacked = np.stack([self.network_input(points) for points in frames])
         tensor = torch.as_tensor(stacked, dtype=torch.float32, device=self.device)
         features = self.model.encode(tensor)
         return [VcrFrame(tensor[i : i + 1], features[i : i + 1]) for i in range(len(frames))]
