@@ -164,6 +164,7 @@ def test_compare_prints_every_method_and_overlays_them(synthetic_root, tmp_path)
         (["run", "--data-root", "{root}", "--seq", "42"], "sequences found: 00"),
         (["run", "--data-root", "{root}", "--stride", "100"], "at least 2"),
         (["run", "--data-root", "{root}", "--method", "nope"], "'nope' is not one of"),
+        (["run", "--data-root", "{root}", "--vcr-passes", "0"], "--vcr-passes"),
         (["eval", "--gt", "{root}/poses/00.txt", "--est", "{short}"], "has 3 poses"),
     ],
 )
