@@ -87,9 +87,8 @@ class GuidedKissICP(KissICP):
         street above the right one (0.72 vs 0.69), half a voxel did not (0.41 vs 0.47). The adaptive
         threshold learns the deviation of the result from the start that won, so it stays kiss-icp's
         own wherever the prediction wins, and one large move that the learned start caught does not
-        inflate it for the frames after. Guesses are projected onto SE(3)
-        first: kiss-icp's Sophus aborts the whole process on a rotation orthonormal only to float32
-        precision.
+        inflate it for the frames after. Guesses are projected onto SE(3) first: kiss-icp's Sophus
+        aborts the whole process on a rotation orthonormal only to float32 precision.
         """
         frame = self.preprocessor.preprocess(frame, np.array([]), self.last_delta)
         source, frame_downsample = self.voxelize(frame)
