@@ -164,6 +164,11 @@ def test_kiss_polish_takes_the_learned_start_where_kiss_icp_loses_track() -> Non
     )  # measured 0.16 m: kiss-icp's accuracy on sparse synthetic scans
     assert guided.trans_rmse_m < 0.2 * alone.trans_rmse_m
     assert run.per_frame_info[1]["kiss_start"] == "global"
+    # Without the prediction start the learned guess replaces it on every frame (the first design).
+    alone_guess = RefinedOdometry(ScriptedRegistrar(gt), "kiss-icp", also_from_last_motion=False)
+    replaced = run_odometry(sequence, alone_guess, indices)
+    assert [info["kiss_start"] for info in replaced.per_frame_info[1:]] == ["global"] * (len(indices) - 1)
+    assert trajectory_pair_errors(replaced.poses, gt).trans_errors_m.max() < 0.25
 
 
 def test_chained_poses_stay_rotations_over_a_long_run() -> None:

@@ -69,16 +69,19 @@ class GuidedKissICP(KissICP):
         self.local_map.update(frame_downsample, pose)
         self.last_pose, self.last_delta = pose, project_to_se3(last_delta)
 
-    def register_frame_with_guess(self, frame: np.ndarray, learned_guess: Transform) -> tuple[Transform, str]:
+    def register_frame_with_guess(
+        self, frame: np.ndarray, learned_guess: Transform, also_from_prediction: bool = True
+    ) -> tuple[Transform, str]:
         """Register ``frame`` (N x 3, float64) from kiss-icp's own prediction and, when the result
         disagrees with ``learned_guess`` (the frame's pose by the global method), from that guess too;
         the result that fits the local map better wins. Returns the new pose and the winning start
-        (``"prediction"`` or ``"global"``).
+        (``"prediction"`` or ``"global"``). ``also_from_prediction=False``: the learned guess alone, in
+        place of the prediction (the comparison below; ``benchmarks/polish_starts.py``).
 
-        Why both: the learned guess in place of the prediction (one start) measured the same at
-        10 Hz (kitti-sample strides 1 and 5: 0.82 % and 0.62 % end-point; the 1.1 km synthetic drive:
-        0.14 % t_rel) but lost the track at stride 10 (57 %), where the network's estimate of a 9 m
-        motion is metres short and kiss-icp does not converge from it; with both starts, 0.45 %. Where
+        Why both (``benchmarks/polish_starts.py``): the learned guess in place of the prediction
+        measured about the same on kitti-sample at strides 1 and 5 (0.83 % and 0.62 % end-point, against
+        0.81 % and 0.63 %) but lost the track at stride 10 (60 % against 0.45 %), where the network's
+        estimate of a 9 m motion is metres short and kiss-icp does not converge from it. Where
         the motion leaves the prediction's basin (large strides, a first pair, a sudden stop) the
         learned guess is the start that converges; elsewhere the prediction is. Fit is open3d's
         ``evaluate_registration`` fitness: the share of the registered points with a map point within
@@ -94,9 +97,12 @@ class GuidedKissICP(KissICP):
         source, frame_downsample = self.voxelize(frame)
         sigma = self.adaptive_threshold.get_threshold()
         prediction = self.last_pose @ self.last_delta
-        new_pose, start, start_pose = self._align(source, prediction, sigma), "prediction", prediction
         learned_guess = project_to_se3(learned_guess)
-        if not _within_basin(new_pose, learned_guess):  # else the learned start would end here too
+        if also_from_prediction:
+            new_pose, start, start_pose = self._align(source, prediction, sigma), "prediction", prediction
+        else:
+            new_pose, start, start_pose = self._align(source, learned_guess, sigma), "global", learned_guess
+        if also_from_prediction and not _within_basin(new_pose, learned_guess):  # else it ends here too
             from_learned = self._align(source, learned_guess, sigma)
             distance = 0.5 * self.config.mapping.voxel_size
             if self._fitness(source, from_learned, distance) > self._fitness(source, new_pose, distance):
@@ -143,11 +149,14 @@ class RefinedOdometry:
     An implausible coarse estimate (:class:`~vcr_odom.odometry.MotionLimits`) is replaced by the
     previous motion before the polish, and flagged.
 
-    ``also_from_last_motion`` (``icp`` only): ICP runs from the global estimate and from the previous
-    motion, and the start whose result has the higher fitness (share of points with a partner within
-    the correspondence distance) wins; ``last_info["icp_start"]`` records which. Why: a learned
-    estimate that is a few metres off on one pair is outside ICP's basin, where the constant-velocity
-    guess often is not; and where the car brakes or turns, the global estimate is the better start.
+    ``also_from_last_motion``: the polish also starts from the motion prior. ``icp``: ICP runs from
+    the global estimate and from the previous motion, and the start whose result has the higher
+    fitness (share of points with a partner within the correspondence distance) wins;
+    ``last_info["icp_start"]`` records which. ``kiss-icp``: see
+    :meth:`GuidedKissICP.register_frame_with_guess` (False: the global estimate replaces kiss-icp's
+    prediction). Why: a learned estimate that is a few metres off on one pair is outside ICP's basin,
+    where the constant-velocity guess often is not; and where the car brakes or turns, or at a large
+    stride, the global estimate is the better start.
     """
 
     def __init__(
@@ -308,7 +317,9 @@ class RefinedOdometry:
             }
             return np.asarray(result.transform, dtype=np.float64)
         if self.refine == "kiss-icp" and self._kiss is not None:
-            new_pose, start = self._kiss.register_frame_with_guess(_kiss_frame(points), self._pose @ coarse)
+            new_pose, start = self._kiss.register_frame_with_guess(
+                _kiss_frame(points), self._pose @ coarse, self.also_from_last_motion
+            )
             self.last_info |= {
                 "kiss_sigma": self._kiss.last_sigma,
                 "kiss_source_points": self._kiss.last_source_points,
