@@ -104,8 +104,7 @@ class GuidedKissICP(KissICP):
             new_pose, start, start_pose = self._align(source, learned_guess, sigma), "global", learned_guess
         if also_from_prediction and not _within_basin(new_pose, learned_guess):  # else it ends here too
             from_learned = self._align(source, learned_guess, sigma)
-            distance = 0.5 * self.config.mapping.voxel_size
-            if self._fitness(source, from_learned, distance) > self._fitness(source, new_pose, distance):
+            if self._fits_better(source, from_learned, new_pose):
                 new_pose, start, start_pose = from_learned, "global", learned_guess
         model_deviation = np.linalg.inv(start_pose) @ new_pose
         self.adaptive_threshold.update_model_deviation(model_deviation)
@@ -126,12 +125,17 @@ class GuidedKissICP(KissICP):
             kernel=sigma,
         )
 
-    def _fitness(self, source: np.ndarray, pose: Transform, distance: float) -> float:
-        """Share of ``source`` points that land within ``distance`` of the local map at ``pose``."""
+    def _fits_better(self, source: np.ndarray, pose: Transform, than: Transform) -> bool:
+        """Whether more of ``source`` lands within half a map voxel of the local map at ``pose``."""
         registration = o3d.pipelines.registration
+        distance = 0.5 * self.config.mapping.voxel_size
         source_cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(source)))
         map_cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(self.local_map.point_cloud()))
-        return float(registration.evaluate_registration(source_cloud, map_cloud, distance, pose).fitness)
+        fitness = [
+            registration.evaluate_registration(source_cloud, map_cloud, distance, candidate).fitness
+            for candidate in (pose, than)
+        ]
+        return bool(fitness[0] > fitness[1])
 
 
 def _difference(a: Transform, b: Transform) -> tuple[float, float]:
