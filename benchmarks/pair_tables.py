@@ -13,18 +13,14 @@ prints one markdown table per pair kind (same-scan, consecutive).
 
 from __future__ import annotations
 
-import argparse
 import warnings
 from pathlib import Path
 
+from sequence_args import sequence_parser
+
 
 def main() -> None:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument("--data-root", type=Path, required=True)
-    parser.add_argument("--seq", default="00")
-    parser.add_argument("--frames", default=None, help="A:B (B exclusive)")
+    parser = sequence_parser(__doc__)
     parser.add_argument("--points", type=int, default=512, help="points per cloud (the VCR weights' N)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--weights", type=Path, action="append", default=[], help="VCR weights (repeat)")

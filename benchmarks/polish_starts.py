@@ -12,22 +12,17 @@ prints end-point drift, per-pair RMSE, and how often each start won, per stride 
 
 from __future__ import annotations
 
-import argparse
 import warnings
 from collections import Counter
 from pathlib import Path
 
 from rich.console import Console
 from rich.table import Table
+from sequence_args import sequence_parser
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument("--data-root", type=Path, required=True)
-    parser.add_argument("--seq", default="00")
-    parser.add_argument("--frames", default=None, help="A:B (B exclusive)")
+    parser = sequence_parser(__doc__)
     parser.add_argument("--stride", type=int, action="append", help="repeatable; default 1")
     parser.add_argument("--weights", type=Path, default=None)
     parser.add_argument("--device", default="auto")

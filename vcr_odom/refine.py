@@ -98,14 +98,13 @@ class GuidedKissICP(KissICP):
         sigma = self.adaptive_threshold.get_threshold()
         prediction = self.last_pose @ self.last_delta
         learned_guess = project_to_se3(learned_guess)
-        if also_from_prediction:
-            new_pose, start, start_pose = self._align(source, prediction, sigma), "prediction", prediction
-        else:
-            new_pose, start, start_pose = self._align(source, learned_guess, sigma), "global", learned_guess
+        start = "prediction" if also_from_prediction else "global"
+        new_pose = self._align(source, prediction if also_from_prediction else learned_guess, sigma)
         if also_from_prediction and not _within_basin(new_pose, learned_guess):  # else it ends here too
             from_learned = self._align(source, learned_guess, sigma)
             if self._fits_better(source, from_learned, new_pose):
-                new_pose, start, start_pose = from_learned, "global", learned_guess
+                new_pose, start = from_learned, "global"
+        start_pose = prediction if start == "prediction" else learned_guess
         model_deviation = np.linalg.inv(start_pose) @ new_pose
         self.adaptive_threshold.update_model_deviation(model_deviation)
         self.local_map.update(frame_downsample, new_pose)

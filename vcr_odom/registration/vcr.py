@@ -28,12 +28,13 @@ GPU_BATCH_SIZE = 16
 
 DEFAULT_PASSES = 2
 """Network passes per pair when nothing polishes the estimate. The second pass registers the source
-moved by the first estimate, i.e. a residual of a few decimetres, where the network is most accurate:
-on the paper's protocol (kitti-sample, 512 points) translation RMSE fell from 0.37 to 0.17 m on
-frames 0-39 (chosen there; a third pass changed it by < 0.01 m), and on the test frames 40-59 from
-0.31 to 0.11 m with every pair within 2 deg / 0.5 m (weights/MODEL_CARD.md). Between two different
-scans (consecutive frames) it neither helped nor hurt (0.34 vs 0.32 m), nor metres apart (strides 5
-and 10): what is left there is a bias of the network, not a residual."""
+moved by the first estimate, i.e. a residual of a few decimetres, where the network is most accurate.
+On the paper's protocol (kitti-sample, 512 points; ``benchmarks/pair_tables.py``) translation RMSE
+falls from 0.37 to 0.16 m on frames 0-39 (where two was chosen; a third pass changed it by < 0.01 m
+in a one-off check) and from 0.31 to 0.11 m on the test frames 40-59, every pair then within
+2 deg / 0.5 m (weights/MODEL_CARD.md). Between two different scans (consecutive frames) it neither
+helps nor hurts (0.29 vs 0.28 m on frames 0-39), nor metres apart: what is left there is a bias of
+the network, not a residual."""
 
 POLISHED_PASSES = 1
 """Passes when ICP or kiss-icp polishes the estimate: the polish refines the residual anyway, and the
@@ -122,7 +123,7 @@ class VcrRegistrar:
         transforms = np.tile(np.eye(4), (len(pairs), 1, 1))
         for pass_index in range(self.passes):
             if pass_index:
-                moved = _moved(source_points, transforms, source_points.device)
+                moved = _moved(source_points, transforms)
                 output = self.model.register_features(
                     moved, self.model.encode(moved), target_points, target_features
                 )
@@ -151,12 +152,12 @@ def _project_finite(transform: torch.Tensor) -> NDArray[np.float64]:
     return transforms
 
 
-def _moved(points: torch.Tensor, transforms: NDArray[np.float64], device: torch.device) -> torch.Tensor:
+def _moved(points: torch.Tensor, transforms: NDArray[np.float64]) -> torch.Tensor:
     """``points`` (B, N, 3) moved by each pair's transform; a non-finite estimate moves nothing (its
     pair stays non-finite through the composition and is reported degenerate)."""
     usable = np.where(np.isfinite(transforms).all(axis=(1, 2))[:, None, None], transforms, np.eye(4))
-    rotation = torch.as_tensor(usable[:, :3, :3], dtype=points.dtype, device=device)
-    translation = torch.as_tensor(usable[:, None, :3, 3], dtype=points.dtype, device=device)
+    rotation = torch.as_tensor(usable[:, :3, :3], dtype=points.dtype, device=points.device)
+    translation = torch.as_tensor(usable[:, None, :3, 3], dtype=points.dtype, device=points.device)
     return points @ rotation.transpose(1, 2) + translation
 
 
