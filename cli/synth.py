@@ -1,4 +1,4 @@
-"""``vcr-odom synth``: write a synthetic sequence (procedural street, HDL-64E-like scans) in the KITTI layout."""
+"""``vcr-odom synth``: write a synthetic sequence (procedural street, ray-cast LiDAR scans) in the KITTI layout."""
 
 from __future__ import annotations
 
@@ -8,7 +8,13 @@ from pathlib import Path
 import click
 
 from vcr_odom.cli.progress import console, frame_progress
-from vcr_odom.data.synth import SEQUENCE_NAME, SynthSequence, write_sequence
+from vcr_odom.data.synth import (
+    SCENE_STYLES,
+    SENSOR_MODELS,
+    SEQUENCE_NAME,
+    SynthSequence,
+    write_sequence,
+)
 
 
 def _check_seq(ctx: click.Context, param: click.Parameter, value: str) -> str:
@@ -32,7 +38,7 @@ def _check_seq(ctx: click.Context, param: click.Parameter, value: str) -> str:
     help="Sequence id (folder name under sequences/).",
 )
 @click.option(
-    "--frames", type=click.IntRange(min=2), default=200, show_default=True, help="Number of frames (10 Hz)."
+    "--frames", type=click.IntRange(min=2), default=200, show_default=True, help="Number of frames."
 )
 @click.option(
     "--seed",
@@ -48,9 +54,63 @@ def _check_seq(ctx: click.Context, param: click.Parameter, value: str) -> str:
     show_default=True,
     help="Typical speed in m/s; the drive varies between 0.5x and 1.5x and slows for turns.",
 )
-def synth(out: Path, seq: str, frames: int, seed: int, speed: float) -> None:
+@click.option(
+    "--sensor",
+    type=click.Choice(SENSOR_MODELS),
+    default="hdl64",
+    show_default=True,
+    help="LiDAR model: hdl64 (KITTI's HDL-64E), hdl32 (HDL-32E), vlp16 (VLP-16), os128 (Ouster OS1-128).",
+)
+@click.option(
+    "--height",
+    type=click.FloatRange(min=0.3, max=5.0),
+    default=None,
+    help="Sensor height above the ground in m (default 1.73, KITTI's mounting).",
+)
+@click.option(
+    "--scene",
+    type=click.Choice(SCENE_STYLES),
+    default="suburban",
+    show_default=True,
+    help="Street style: suburban (town, suburbs, country roads), avenue (wide, medians, trees), "
+    "highway (4-6 lanes, guard rails, long curves), oldtown (narrow lanes, houses at the curb, tight turns).",
+)
+@click.option(
+    "--stops/--no-stops",
+    default=False,
+    show_default=True,
+    help="Start from rest and stop for a few seconds now and then (frames with zero motion).",
+)
+@click.option(
+    "--rate-hz",
+    type=click.FloatRange(min=1.0, max=50.0),
+    default=10.0,
+    show_default=True,
+    help="Frames per second (times.txt and the motion between frames follow it), e.g. 2 for a 2 Hz scanner.",
+)
+def synth(
+    out: Path,
+    seq: str,
+    frames: int,
+    seed: int,
+    speed: float,
+    sensor: str,
+    height: float | None,
+    scene: str,
+    stops: bool,
+    rate_hz: float,
+) -> None:
     """Generate a synthetic LiDAR sequence with exact ground truth (the built-in data set)."""
-    sequence = SynthSequence(frames=frames, seed=seed, speed=speed)
+    sequence = SynthSequence(
+        frames=frames,
+        seed=seed,
+        speed=speed,
+        sensor=sensor,
+        height=height,
+        scene=scene,
+        stops=stops,
+        frame_period=1.0 / rate_hz,
+    )
     start = time.perf_counter()
     with frame_progress(f"synth seed {seed}", frames) as advance:
         seq_dir = write_sequence(sequence, out, seq=seq, progress=advance)
@@ -58,5 +118,6 @@ def synth(out: Path, seq: str, frames: int, seed: int, speed: float) -> None:
     console.print(f"Wrote {frames} frames to {seq_dir} and poses to {Path(out) / 'poses' / f'{seq}.txt'}")
     duration = sequence.timestamps[-1]
     console.print(
-        f"Drive: {sequence.length:.1f} m in {duration:.1f} s ({frames / elapsed:.1f} frames/s generated)"
+        f"Drive: {sequence.length:.1f} m in {duration:.1f} s ({frames / elapsed:.1f} frames/s generated); "
+        f"{sensor} at {sequence.sensor.height:.2f} m, {scene} scene"
     )

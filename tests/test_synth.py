@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import shutil
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -14,7 +15,17 @@ from scipy.spatial import cKDTree
 
 from vcr_odom.cli.synth import synth
 from vcr_odom.data.base import LidarSequence
-from vcr_odom.data.synth import KITTI_TR, SensorConfig, SynthSequence, generate_sequence, write_bin
+from vcr_odom.data.synth import (
+    HEIGHT_RANGE,
+    KITTI_TR,
+    SCENE_STYLES,
+    SENSOR_MODELS,
+    SensorConfig,
+    SynthSequence,
+    generate_sequence,
+    write_bin,
+)
+from vcr_odom.data.synth_scene import StreetScene, Surface
 from vcr_odom.errors import ConfigError
 from vcr_odom.geometry import (
     camera_to_lidar_poses,
@@ -146,6 +157,82 @@ def test_sensor_has_64_beams_from_plus_2_to_minus_24_8_degrees() -> None:
     np.testing.assert_allclose(np.linalg.norm(directions, axis=1), 1.0)
 
 
+# Published beam layouts (top and bottom elevation in degrees, beams, azimuth resolution in degrees):
+# written out here rather than read from the presets, so a wrong preset fails.
+SENSOR_SPECS = {
+    "hdl64": (2.0, -24.8, 64, 0.17),
+    "hdl32": (10.67, -30.67, 32, 0.2),
+    "vlp16": (15.0, -15.0, 16, 0.2),
+    "os128": (22.5, -22.5, 128, 360.0 / 1024),
+}
+
+
+def _small(name: str, **changes: object) -> SensorConfig:
+    """A preset with a coarse azimuth grid: the beam layout is what counts, and it casts fast."""
+    return replace(SensorConfig.model(name), azimuth_steps=256, **changes)
+
+
+def _elevations_deg(points: np.ndarray) -> np.ndarray:
+    xyz = points[:, :3].astype(np.float64)
+    return np.degrees(np.arctan2(xyz[:, 2], np.hypot(xyz[:, 0], xyz[:, 1])))
+
+
+@pytest.mark.parametrize("name", SENSOR_MODELS)
+def test_sensor_presets_have_their_published_beam_layout(name: str) -> None:
+    top, bottom, beams, resolution = SENSOR_SPECS[name]
+    sensor = SensorConfig.model(name)
+    assert sensor.name == name and sensor.n_beams == beams
+    assert 360.0 / sensor.azimuth_steps == pytest.approx(resolution, abs=0.01)
+    directions = sensor.directions()
+    assert directions.shape == (sensor.n_rays, 3) == (beams * sensor.azimuth_steps, 3)
+    np.testing.assert_allclose(np.linalg.norm(directions, axis=1), 1.0, atol=1e-12)
+    ray_elevation = np.degrees(np.arcsin(directions[:, 2]))
+    assert ray_elevation.max() == pytest.approx(top) and ray_elevation.min() == pytest.approx(bottom)
+    # A small frame: every point lies within the field of view, and each beam shows as one ring.
+    points = SynthSequence(frames=2, seed=0, sensor=_small(name)).frame(0)
+    elevation = _elevations_deg(points)
+    assert elevation.min() >= bottom - 1e-3 and elevation.max() <= top + 1e-3
+    assert elevation.min() < bottom + 0.1  # the lowest beam hits the ground
+    gaps = np.diff(np.sort(elevation))
+    assert 1 + int(np.sum(gaps > 0.05)) == beams
+    assert np.max(np.linalg.norm(points[:, :3], axis=1)) <= sensor.max_range
+
+
+def test_only_the_hdl64_staggers_its_lasers_in_azimuth() -> None:
+    assert SensorConfig.model("hdl64") == SensorConfig()
+    assert np.ptp(SensorConfig().beam_azimuth_offsets) > np.radians(4.0)
+    for name in ("hdl32", "vlp16", "os128"):
+        assert not np.any(SensorConfig.model(name).beam_azimuth_offsets)
+
+
+def test_unknown_sensor_model_names_the_option_and_the_choices() -> None:
+    with pytest.raises(ConfigError, match="sensor") as error:
+        SensorConfig.model("hdl128")
+    assert all(name in str(error.value) for name in SENSOR_MODELS)
+
+
+def test_mounting_height_moves_the_ground_in_the_scan() -> None:
+    low = SynthSequence(frames=2, seed=0, sensor=_small("vlp16"))
+    high = SynthSequence(frames=2, seed=0, sensor=_small("vlp16"), height=2.05)
+    assert high.sensor.height == 2.05 and low.sensor.height == 1.73
+    np.testing.assert_allclose(high.world_poses[:, 2, 3] - low.world_poses[:, 2, 3], 0.32, atol=2e-3)
+    for sequence in (low, high):
+        points = sequence.frame(0)
+        near = points[np.linalg.norm(points[:, :2], axis=1) < 12.0]
+        ground = near[near[:, 2] < -1.2]
+        assert abs(np.median(ground[:, 2]) + sequence.sensor.height) < 0.1
+
+
+def test_varied_sequences_draw_sensor_height_and_scene_from_the_seed() -> None:
+    drawn = [SynthSequence.varied(seed) for seed in range(12)]
+    assert all(HEIGHT_RANGE[0] <= s.sensor.height <= HEIGHT_RANGE[1] for s in drawn)
+    assert len({s.sensor.name for s in drawn}) > 1 and len({s.scene_style for s in drawn}) > 1
+    again = SynthSequence.varied(3)
+    assert (again.sensor, again.scene_style, again.speed, again.stops) == (
+        drawn[3].sensor, drawn[3].scene_style, drawn[3].speed, drawn[3].stops,
+    )  # fmt: skip
+
+
 def _median_gap(tree: cKDTree, pose: np.ndarray, points: np.ndarray) -> float:
     distance, _ = tree.query(transform_points(pose, points))
     return float(np.median(distance))
@@ -198,6 +285,57 @@ def test_long_drive_is_smooth_with_turns_hills_and_speed_changes() -> None:
     )
 
 
+def test_stops_start_from_rest_and_stand_still_between_frames() -> None:
+    sequence = SynthSequence(frames=600, seed=0, stops=True)
+    steps = np.linalg.norm(np.diff(sequence.gt_poses[:, :3, 3], axis=0), axis=1)
+    assert np.array_equal(sequence.gt_poses[1], sequence.gt_poses[0])  # a standing start
+    assert sequence.drive.speeds[0] == 0.0
+    standing = steps == 0.0
+    moving = np.flatnonzero(~standing)
+    assert len(moving) and steps.max() > 0.5  # pulls away and gets going
+    later_stops = np.flatnonzero(standing[moving[0] :])
+    assert len(later_stops) >= 10, "no stop of a second or more after pulling away"
+    # Braking into a stop and pulling away are gradual: at most 2 m/s^2 along the road.
+    along = np.diff(sequence.drive.stations)
+    assert np.abs(np.diff(along)).max() < 2.0 * 0.1**2 + 1e-6
+    assert not np.any(np.diff(SynthSequence(frames=600, seed=0).gt_poses[:, :3, 3], axis=0) == 0.0)
+
+
+def test_frame_period_spaces_times_and_poses() -> None:
+    slow = SynthSequence(frames=6, seed=0, frame_period=0.5)
+    fast = SynthSequence(frames=26, seed=0)
+    np.testing.assert_allclose(slow.timestamps, np.arange(6) * 0.5)
+    np.testing.assert_allclose(
+        slow.gt_poses, fast.gt_poses[::5], atol=1e-9
+    )  # the same drive, sampled at 2 Hz
+
+
+def _building_share(scene: StreetScene) -> float:
+    mesh = scene.mesh_near(scene.road.xy[300:1000:50], 40.0)
+    return float(np.isin(mesh.surface, [Surface.WALL, Surface.GLASS, Surface.ROOF]).mean())
+
+
+def test_scene_styles_build_different_streets() -> None:
+    scenes = {name: StreetScene(0, 1000.0, scene=name) for name in SCENE_STYLES}
+    lanes = {name: [p.lanes_left + 1 for p in s.layout.profiles] for name, s in scenes.items()}
+    curvature = {name: np.abs(s.road.curvature).max() for name, s in scenes.items()}
+    assert all(4 <= n <= 6 for n in lanes["highway"]) and not len(scenes["highway"].layout.crossings)
+    assert curvature["highway"] < 1.0 / 400.0 < 1.0 / 25.0 < curvature["oldtown"]
+    assert max(lanes["oldtown"]) <= 2 and min(lanes["avenue"]) >= 4
+    assert all(p.median > 0.0 for name in ("avenue", "highway") for p in scenes[name].layout.profiles)
+    assert _building_share(scenes["highway"]) < 0.5 * _building_share(scenes["oldtown"])
+    # "suburban" is the original world.
+    default = StreetScene(0, 1000.0)
+    assert np.array_equal(default.road.xy, scenes["suburban"].road.xy)
+    assert default.layout.profiles == scenes["suburban"].layout.profiles
+
+
+@pytest.mark.parametrize("scene", SCENE_STYLES[1:])
+def test_each_scene_style_gives_a_registrable_scan(scene: str) -> None:
+    points = SynthSequence(frames=2, seed=1, scene=scene, sensor=_small("hdl32")).frame(1)
+    assert len(points) > 5_000 and np.mean(points[:, 2] > -1.0) > 0.02  # ground and structure
+
+
 def test_last_frame_of_a_long_sequence_builds_only_its_neighbourhood() -> None:
     sequence = SynthSequence(frames=1000, seed=1)
     points = sequence.frame(999)
@@ -219,7 +357,16 @@ def test_interrupted_write_leaves_no_file(tmp_path: Path, monkeypatch: pytest.Mo
 
 
 @pytest.mark.parametrize(
-    ("kwargs", "word"), [({"frames": 1}, "frames"), ({"seed": -1}, "seed"), ({"speed": 0.0}, "speed")]
+    ("kwargs", "word"),
+    [
+        ({"frames": 1}, "frames"),
+        ({"seed": -1}, "seed"),
+        ({"speed": 0.0}, "speed"),
+        ({"sensor": "hdl128"}, "sensor"),
+        ({"scene": "moon"}, "scene"),
+        ({"height": 0.0}, "height"),
+        ({"frame_period": 0.0}, "frame_period"),
+    ],
 )
 def test_bad_library_options_raise_config_errors(kwargs: dict, word: str) -> None:
     with pytest.raises(ConfigError, match=word):
@@ -245,12 +392,43 @@ def test_cli_writes_a_sequence_and_drops_stale_frames(written: Path, tmp_path: P
         (["--seed", "-3"], "--seed"),
         (["--speed", "0"], "--speed"),
         (["--seq", "../x"], "--seq"),
+        (["--sensor", "hdl128"], "--sensor"),
+        (["--scene", "moon"], "--scene"),
+        (["--height", "-1"], "--height"),
+        (["--rate-hz", "0"], "--rate-hz"),
     ],
 )
 def test_cli_bad_options_name_the_option(tmp_path: Path, args: list[str], option: str) -> None:
     result = CliRunner().invoke(synth, ["--out", str(tmp_path), *args])
     assert result.exit_code == 2
     assert option in result.output
+
+
+def test_cli_sensor_scene_height_stops_and_rate(tmp_path: Path) -> None:
+    args = ["--frames", "3", "--sensor", "vlp16", "--scene", "highway", "--height", "2.0"]
+    result = CliRunner().invoke(synth, ["--out", str(tmp_path), *args, "--stops", "--rate-hz", "2"])
+    assert result.exit_code == 0, result.output
+    assert "vlp16" in result.output and "highway" in result.output
+    np.testing.assert_allclose(read_times(tmp_path / "sequences/00/times.txt"), [0.0, 0.5, 1.0])
+    poses = read_kitti_poses(tmp_path / "poses/00.txt")
+    np.testing.assert_allclose(poses[1], poses[0], atol=1e-12)  # standing start
+    points = _read_bin(tmp_path / "sequences/00/velodyne/000000.bin")
+    elevation = _elevations_deg(points)
+    assert elevation.max() > 10.0 and elevation.min() >= -15.0 - 1e-3
+
+
+def test_cli_help_documents_the_new_options() -> None:
+    result = CliRunner().invoke(synth, ["--help"])
+    for option in (
+        "--sensor",
+        "--height",
+        "--scene",
+        "--stops / --no-stops",
+        "--rate-hz",
+        "os128",
+        "oldtown",
+    ):
+        assert option in result.output
 
 
 def test_cli_requires_out() -> None:

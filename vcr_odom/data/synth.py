@@ -1,5 +1,9 @@
-"""Synthetic LiDAR sequences: a car drives through the procedural street of :mod:`synth_scene` and an
-HDL-64E-like sensor ray-casts it; the result is written in the KITTI odometry layout.
+"""Synthetic LiDAR sequences: a car drives through the procedural street of :mod:`synth_scene` and a
+spinning LiDAR ray-casts it; the result is written in the KITTI odometry layout.
+
+For variety in training data the sensor (:data:`SENSOR_MODELS`: KITTI's HDL-64E by default, HDL-32E,
+VLP-16, OS1-128), its mounting height, the scene style (:data:`SCENE_STYLES`), the speed, standing
+starts and stops, and the frame rate can all be chosen; :meth:`SynthSequence.varied` draws them.
 
 It is the built-in data set of ``vcr-odom`` (demo, tests, training): ground truth is exact, any
 length is available, and the same seed always gives byte-identical files.
@@ -15,15 +19,24 @@ import math
 import os
 import re
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import open3d as o3d
 from numpy.typing import NDArray
 
-from vcr_odom.data.synth_scene import PREROLL, ROAD_STEP, MeshPart, StreetScene, Surface
+from vcr_odom.data.synth_scene import (
+    PREROLL,
+    ROAD_STEP,
+    SCENE_STYLES,
+    MeshPart,
+    StreetScene,
+    Surface,
+    scene_style,
+)
 from vcr_odom.errors import ConfigError
 from vcr_odom.geometry import (
     invert,
@@ -34,7 +47,13 @@ from vcr_odom.geometry import (
 from vcr_odom.io import atomic_write_bytes, write_kitti_calib, write_kitti_poses, write_times
 
 FRAME_PERIOD = 0.1
-"""Seconds between frames: the HDL-64E spins at 10 Hz in KITTI."""
+"""Seconds between frames by default: the HDL-64E spins at 10 Hz in KITTI."""
+HEIGHT_RANGE = (1.5, 2.1)
+"""Mounting heights (m) :meth:`SynthSequence.varied` draws from: low hatchbacks to vans and roof racks."""
+START_DWELL = (1.0, 3.0)
+STOP_DWELL = (2.0, 8.0)
+STOP_SPACING = (60.0, 300.0)
+"""With stops: seconds standing before pulling away, seconds per stop, metres between stops."""
 
 # KITTI odometry calibration of sequences 00-02 (the rig the sensor model imitates).
 KITTI_P0 = [7.188560e02, 0.0, 6.071928e02, 0.0, 0.0, 7.188560e02, 1.852157e02, 0.0, 0.0, 0.0, 1.0, 0.0]
@@ -76,17 +95,20 @@ rigid (a ~1e-7 change, as the KITTI loader does) so that camera <-> LiDAR pose c
 # Sensor
 
 
+SENSOR_MODELS = ("hdl64", "hdl32", "vlp16", "os128")
+"""Names accepted by :meth:`SensorConfig.model` (``hdl64`` is the default :class:`SensorConfig`)."""
+
+
 @dataclass(frozen=True)
 class SensorConfig:
-    """An HDL-64E-like spinning LiDAR.
+    """A spinning LiDAR; the defaults are KITTI's HDL-64E.
 
-    Like the real sensor, the 64 beams form two blocks: 32 upper lasers about 1/3 deg apart and 32
-    lower lasers about 1/2 deg apart, spanning +2 deg to -24.8 deg.
+    Beams are given as blocks of evenly spaced elevations ``(top_deg, bottom_deg, count)``, top first.
+    Like the real HDL-64E, the default has two: 32 upper lasers about 1/3 deg apart and 32 lower lasers
+    about 1/2 deg apart, spanning +2 deg to -24.8 deg. Other sensors: :meth:`model`.
     """
 
-    upper_beams: tuple[float, float] = (2.0, -8.33)
-    lower_beams: tuple[float, float] = (-8.83, -24.8)
-    beams_per_block: int = 32
+    beam_blocks: tuple[tuple[float, float, int], ...] = ((2.0, -8.33, 32), (-8.83, -24.8, 32))
     azimuth_steps: int = 2083
     range_noise: float = 0.02
     min_range: float = 2.5
@@ -94,23 +116,49 @@ class SensorConfig:
     height: float = 1.73
     dropout: float = 0.02
     reflectance_noise: float = 0.03
+    azimuth_spread: float = 4.0
+    """Per-laser azimuth offsets are drawn within +-this (deg); 0 where lasers fire in one column."""
+    name: str = "hdl64"
+
+    def __post_init__(self) -> None:
+        if not self.beam_blocks or any(int(count) < 1 for *_, count in self.beam_blocks):
+            raise ConfigError(f"sensor beam_blocks need at least one beam each, got {self.beam_blocks!r}")
+        if self.azimuth_steps < 1:
+            raise ConfigError(f"sensor azimuth_steps must be >= 1, got {self.azimuth_steps!r}")
+        if not 0.0 <= self.min_range < self.max_range:
+            raise ConfigError(
+                f"sensor needs 0 <= min_range < max_range, got {self.min_range}, {self.max_range}"
+            )
+
+    @classmethod
+    def model(cls, name: str) -> SensorConfig:
+        """A named sensor preset (see :data:`SENSOR_MODELS`); ``hdl64`` equals ``SensorConfig()``."""
+        if name not in _SENSOR_PRESETS:
+            raise ConfigError(f"sensor must be one of {', '.join(SENSOR_MODELS)}, got {name!r}")
+        return cls(name=name, **_SENSOR_PRESETS[name])
+
+    @property
+    def n_beams(self) -> int:
+        return sum(int(count) for *_, count in self.beam_blocks)
 
     @property
     def elevations(self) -> NDArray[np.float64]:
         """Beam elevation angles in radians, top beam first."""
-        upper = np.linspace(*self.upper_beams, self.beams_per_block)
-        lower = np.linspace(*self.lower_beams, self.beams_per_block)
-        return np.radians(np.concatenate([upper, lower]))
+        blocks = [np.linspace(top, bottom, int(count)) for top, bottom, count in self.beam_blocks]
+        return np.radians(np.concatenate(blocks))
 
     @property
     def n_rays(self) -> int:
-        return 2 * self.beams_per_block * self.azimuth_steps
+        return self.n_beams * self.azimuth_steps
 
     @property
     def beam_azimuth_offsets(self) -> NDArray[np.float64]:
-        """Fixed per-laser azimuth offsets (radians, within +-4 deg), like the rotational corrections of a
-        real HDL-64E: the 64 lasers do not fire along one vertical line."""
-        return np.radians(np.random.default_rng(64).uniform(-4.0, 4.0, 2 * self.beams_per_block))
+        """Fixed per-laser azimuth offsets (radians, within +-``azimuth_spread`` deg), like the rotational
+        corrections of a real HDL-64E: its 64 lasers do not fire along one vertical line."""
+        if self.azimuth_spread <= 0.0:
+            return np.zeros(self.n_beams)
+        spread = self.azimuth_spread
+        return np.radians(np.random.default_rng(64).uniform(-spread, spread, self.n_beams))
 
     def directions(self) -> NDArray[np.float64]:
         """Unit ray directions ``(n_rays, 3)`` in the LiDAR frame, laser by laser (KITTI's ring order),
@@ -124,6 +172,26 @@ class SensorConfig:
             -1,
         )
         return directions.reshape(-1, 3)
+
+
+_SENSOR_PRESETS: dict[str, dict[str, Any]] = {
+    "hdl64": {},
+    # Velodyne HDL-32E: 32 lasers 1.33 deg apart, 0.2 deg azimuth at 10 Hz, +-2 cm accuracy.
+    "hdl32": {
+        "beam_blocks": ((10.67, -30.67, 32),), "azimuth_steps": 1800, "range_noise": 0.015,
+        "min_range": 1.0, "max_range": 100.0, "azimuth_spread": 0.0,
+    },
+    # Velodyne VLP-16 (Puck): 16 lasers 2 deg apart, 0.2 deg azimuth at 10 Hz, +-3 cm accuracy.
+    "vlp16": {
+        "beam_blocks": ((15.0, -15.0, 16),), "azimuth_steps": 1800, "range_noise": 0.03,
+        "min_range": 1.0, "max_range": 100.0, "azimuth_spread": 0.0,
+    },
+    # Ouster OS1-128 in its 1024x10 mode: 45 deg vertical field, a few cm of range noise.
+    "os128": {
+        "beam_blocks": ((22.5, -22.5, 128),), "azimuth_steps": 1024, "range_noise": 0.03,
+        "min_range": 0.8, "max_range": 120.0, "azimuth_spread": 0.0,
+    },
+}  # fmt: skip
 
 
 # Per-surface sensor behaviour (albedo itself is per triangle, see synth_scene): the probability that a
@@ -254,9 +322,15 @@ class Drive:
         return float(np.linalg.norm(np.diff(self.world_poses[:, :3, 3], axis=0), axis=1).sum())
 
 
-def _speed_profile(scene: StreetScene, speed: float, rng: np.random.Generator) -> NDArray[np.float64]:
+def _speed_profile(
+    scene: StreetScene,
+    speed: float,
+    rng: np.random.Generator,
+    stops: NDArray[np.int64] | None = None,
+) -> NDArray[np.float64]:
     """Speed (m/s) at every road sample: random cruising speeds between 0.5x and 1.5x ``speed``,
-    slowed for curves (lateral acceleration <= 2 m/s^2) and limited to gentle acceleration/braking."""
+    slowed for curves (lateral acceleration <= 2 m/s^2), zero at the ``stops`` samples, and limited to
+    gentle acceleration/braking (so the car brakes into each stop and pulls away from it)."""
     n = len(scene.road.xy)
     stations = np.arange(n) * ROAD_STEP
     knots, targets = [0.0], [speed * rng.uniform(0.5, 1.5)]
@@ -265,6 +339,8 @@ def _speed_profile(scene: StreetScene, speed: float, rng: np.random.Generator) -
         targets.append(speed * rng.uniform(0.5, 1.5))
     v = np.interp(stations, knots, targets)
     v = np.minimum(v, np.sqrt(2.0 / np.maximum(np.abs(scene.road.curvature), 1e-6)))
+    if stops is not None:
+        v[stops] = 0.0
     accelerate, brake = 1.2, 2.0
     for i in range(1, n):
         v[i] = min(v[i], math.sqrt(v[i - 1] ** 2 + 2.0 * accelerate * ROAD_STEP))
@@ -273,18 +349,77 @@ def _speed_profile(scene: StreetScene, speed: float, rng: np.random.Generator) -
     return v
 
 
-def make_drive(scene: StreetScene, frames: int, speed: float, sensor: SensorConfig, seed: int) -> Drive:
-    """The car follows the road at the speed profile; yaw follows the road, pitch and roll the ground
-    under it, plus a little body pitch/roll from braking and cornering."""
-    v = _speed_profile(scene, speed, np.random.default_rng([seed, 4]))
+def _stops(n_samples: int, rng: np.random.Generator) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    """Road samples where the car stands and for how long (s): a standing start at the first frame,
+    then a stop every 60-300 m (traffic lights, junctions, queues)."""
+    index, dwell = [round(PREROLL / ROAD_STEP)], [rng.uniform(*START_DWELL)]
+    while True:
+        next_stop = index[-1] + int(rng.uniform(*STOP_SPACING) / ROAD_STEP)
+        if next_stop >= n_samples - 1:
+            return np.array(index, dtype=np.int64), np.array(dwell)
+        index.append(next_stop)
+        dwell.append(rng.uniform(*STOP_DWELL))
+
+
+def _frame_stations(
+    v: NDArray[np.float64],
+    frame_times_from_start: NDArray[np.float64],
+    stops: NDArray[np.int64],
+    dwell: NDArray[np.float64],
+) -> NDArray[np.float64]:
+    """Station at each frame time (seconds after the car passes :data:`PREROLL`).
+
+    Constant acceleration between road samples gives the time to each sample; at a stop the car waits
+    ``dwell`` seconds, so frames in that wait share one station exactly (zero motion between them).
+    """
     stations = np.arange(len(v)) * ROAD_STEP
-    # Time at each road sample, then the station at each frame time.
     time = np.concatenate([[0.0], np.cumsum(2.0 * ROAD_STEP / (v[1:] + v[:-1]))])
-    t0 = np.interp(PREROLL, stations, time)
-    frame_times = t0 + np.arange(frames) * FRAME_PERIOD
-    if frame_times[-1] > time[-1]:
-        raise ConfigError(f"road too short for {frames} frames")  # cannot happen: the road is sized for it
-    s = np.interp(frame_times, time, stations)
+    if not len(stops):  # the original drive, kept bit for bit: linear in time between samples
+        frame_times = np.interp(PREROLL, stations, time) + frame_times_from_start
+        _check_road(frame_times, time)
+        return np.interp(frame_times, time, stations)
+    wait = np.zeros(len(v))
+    wait[stops] = dwell
+    time = time + np.cumsum(wait) - wait  # arrival at each sample
+    knots_t = np.concatenate([time, time[stops] + dwell])  # each stop twice: arrival and departure
+    order = np.argsort(knots_t, kind="stable")
+    knots_t = knots_t[order]
+    knots_s = np.concatenate([stations, stations[stops]])[order]
+    knots_v = np.concatenate([v, v[stops]])[order]
+    frame_times = np.interp(PREROLL, stations, time) + frame_times_from_start
+    _check_road(frame_times, knots_t)
+    # Exact constant-acceleration motion within each interval: near a stop the samples are seconds
+    # apart, and linear interpolation there would jerk the speed from frame to frame.
+    j = np.clip(np.searchsorted(knots_t, frame_times, side="right") - 1, 0, len(knots_t) - 2)
+    tau = frame_times - knots_t[j]
+    accel = (knots_v[j + 1] - knots_v[j]) / (knots_t[j + 1] - knots_t[j])
+    return knots_s[j] + knots_v[j] * tau + 0.5 * accel * tau * tau
+
+
+def _check_road(frame_times: NDArray[np.float64], knot_times: NDArray[np.float64]) -> None:
+    if frame_times[-1] > knot_times[-1]:
+        raise ConfigError("road too short for the drive")  # cannot happen: the road is sized for it
+
+
+def make_drive(
+    scene: StreetScene,
+    frames: int,
+    speed: float,
+    sensor: SensorConfig,
+    seed: int,
+    stops: bool = False,
+    frame_period: float = FRAME_PERIOD,
+) -> Drive:
+    """The car follows the road at the speed profile (with ``stops``: from a standing start, stopping
+    now and then); yaw follows the road, pitch and roll the ground under it, plus a little body
+    pitch/roll from braking and cornering."""
+    n = len(scene.road.xy)
+    stop_at, dwell = (
+        _stops(n, np.random.default_rng([seed, 7])) if stops else (np.zeros(0, np.int64), np.zeros(0))
+    )
+    v = _speed_profile(scene, speed, np.random.default_rng([seed, 4]), stop_at)
+    stations = np.arange(n) * ROAD_STEP
+    s = _frame_stations(v, np.arange(frames) * frame_period, stop_at, dwell)
     speed_at = np.interp(s, stations, v)
     accel = np.interp(s, stations, np.gradient(v, ROAD_STEP) * v)
     xy, heading, curvature = scene.road.sample(s)
@@ -340,6 +475,11 @@ class SynthSequence:
     Frames are ray-cast in windows of ``window`` frames: each window gets one ray-casting scene of
     everything the sensor can reach from its poses, so memory and build time stay bounded for any
     length and a frame's content never depends on which frames were asked for before.
+
+    ``sensor`` is a :class:`SensorConfig` or a preset name (:data:`SENSOR_MODELS`); ``height`` overrides
+    its mounting height (m); ``scene`` is a style of :data:`SCENE_STYLES`; ``stops`` makes the car start
+    from rest and stop now and then; ``frame_period`` is the time between frames (s). The defaults give
+    the original sequences, byte for byte.
     """
 
     def __init__(
@@ -347,29 +487,64 @@ class SynthSequence:
         frames: int = 200,
         seed: int = 0,
         speed: float = 10.0,
-        sensor: SensorConfig | None = None,
+        sensor: SensorConfig | str | None = None,
         window: int = 200,
+        *,
+        height: float | None = None,
+        scene: str = "suburban",
+        stops: bool = False,
+        frame_period: float = FRAME_PERIOD,
     ) -> None:
         _check_options(frames, seed, speed)
+        _check_setup(height, frame_period)
+        scene_style(scene)  # fail now, not on first use
         if window < 1:
             raise ConfigError(f"window must be >= 1 frame, got {window!r}")
+        if isinstance(sensor, str):
+            sensor = SensorConfig.model(sensor)
+        sensor = sensor or SensorConfig()
         self.frames = frames
         self.seed = seed
         self.speed = speed
-        self.sensor = sensor or SensorConfig()
+        self.sensor = sensor if height is None else replace(sensor, height=float(height))
         self.window = window
-        self.name = f"synth-seed{seed}"
+        self.scene_style = scene
+        self.stops = bool(stops)
+        self.frame_period = float(frame_period)
+        extras = [scene] if scene != "suburban" else []
+        extras += [self.sensor.name] if self.sensor.name != "hdl64" else []
+        self.name = "-".join([f"synth-seed{seed}", *extras])
         self._simulators: dict[int, LidarSimulator] = {}
+
+    @classmethod
+    def varied(cls, seed: int, frames: int = 200, window: int = 200) -> SynthSequence:
+        """A drive with a random sensor, mounting height, scene style, speed and stops (all drawn from
+        ``seed``), so training data covers more than one car and one kind of street."""
+        rng = np.random.default_rng([seed, 6])
+        scene = str(rng.choice(SCENE_STYLES))
+        speeds = {"highway": (18.0, 28.0), "avenue": (8.0, 16.0), "oldtown": (3.0, 8.0)}
+        return cls(
+            frames=frames,
+            seed=seed,
+            speed=float(rng.uniform(*speeds.get(scene, (6.0, 14.0)))),
+            sensor=str(rng.choice(SENSOR_MODELS)),
+            window=window,
+            height=float(rng.uniform(*HEIGHT_RANGE)),
+            scene=scene,
+            stops=scene != "highway" and bool(rng.random() < 0.5),
+        )
 
     @cached_property
     def scene(self) -> StreetScene:
         # Road long enough for the fastest possible drive plus what the sensor sees beyond its end.
-        reach = self.frames * FRAME_PERIOD * self.speed * 1.5 + self.sensor.max_range + 60.0
-        return StreetScene(self.seed, reach)
+        reach = self.frames * self.frame_period * self.speed * 1.5 + self.sensor.max_range + 60.0
+        return StreetScene(self.seed, reach, scene=self.scene_style)
 
     @cached_property
     def drive(self) -> Drive:
-        return make_drive(self.scene, self.frames, self.speed, self.sensor, self.seed)
+        return make_drive(
+            self.scene, self.frames, self.speed, self.sensor, self.seed, self.stops, self.frame_period
+        )
 
     def __len__(self) -> int:
         return self.frames
@@ -390,7 +565,7 @@ class SynthSequence:
 
     @property
     def timestamps(self) -> NDArray[np.float64]:
-        return np.arange(self.frames) * FRAME_PERIOD
+        return np.arange(self.frames) * self.frame_period
 
     @property
     def tr_velo_to_cam(self) -> NDArray[np.float64]:
@@ -428,6 +603,13 @@ def _check_options(frames: int, seed: int, speed: float) -> None:
         raise ConfigError(f"seed must be a non-negative integer, got {seed!r}")
     if not 1.0 <= speed <= 30.0:
         raise ConfigError(f"speed must be between 1 and 30 m/s, got {speed!r}")
+
+
+def _check_setup(height: float | None, frame_period: float) -> None:
+    if height is not None and not 0.3 <= height <= 5.0:
+        raise ConfigError(f"height must be between 0.3 and 5 m, got {height!r}")
+    if not 0.02 <= frame_period <= 1.0:
+        raise ConfigError(f"frame_period must be between 0.02 and 1 s (1-50 Hz), got {frame_period!r}")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -485,6 +667,11 @@ def generate_sequence(
     seed: int = 0,
     speed: float = 10.0,
     progress: Callable[[int], None] | None = None,
+    **options: Any,
 ) -> Path:
-    """Generate and write a synthetic sequence in the KITTI layout; returns ``<out_root>/sequences/<seq>``."""
-    return write_sequence(SynthSequence(frames=frames, seed=seed, speed=speed), out_root, seq, progress)
+    """Generate and write a synthetic sequence in the KITTI layout; returns ``<out_root>/sequences/<seq>``.
+
+    ``options`` go to :class:`SynthSequence` (``sensor``, ``height``, ``scene``, ``stops``, ``frame_period``).
+    """
+    sequence = SynthSequence(frames=frames, seed=seed, speed=speed, **options)
+    return write_sequence(sequence, out_root, seq, progress)

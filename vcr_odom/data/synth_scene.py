@@ -4,7 +4,8 @@ The scene is laid out around a road: a smooth centre line (the path the car driv
 heightfield, and the things that make real streets registrable: facades with recesses, windows and
 balconies, poles and signs, parked cars, trees, hedges, walls and fences. Four kinds of street
 (urban, residential, industrial, open) alternate at intersections so that a network trained on it
-sees the variety of KITTI's drives rather than one repeated corridor.
+sees the variety of KITTI's drives rather than one repeated corridor. A scene style (:data:`SCENES`:
+suburban, avenue, highway, oldtown) changes the mix, the cross-sections and how the road bends.
 
 Everything is a pure function of the seed. Geometry is generated lazily in chunks (50 m blocks of
 road-side objects, 64 m squares of ground) so that a long drive only ever holds what the sensor can
@@ -17,13 +18,15 @@ import itertools
 import math
 from collections import OrderedDict
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from enum import IntEnum
 from functools import lru_cache
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
+
+from vcr_odom.errors import ConfigError
 
 FloatArray = NDArray[np.float64]
 
@@ -332,7 +335,20 @@ def _smooth(values: FloatArray, sigma_samples: float) -> FloatArray:
     return np.convolve(padded, kernel, mode="valid")
 
 
-def make_road(rng: np.random.Generator, length: float) -> Road:
+@dataclass(frozen=True)
+class RoadShape:
+    """How a road bends (metres, degrees): straights, then either a sharp (intersection-like) turn
+    with probability ``sharp_prob`` or a gentle bend. The defaults are the suburban street."""
+
+    straight: tuple[float, float] = (40.0, 220.0)
+    sharp_prob: float = 0.45
+    sharp_angle: tuple[float, float] = (60.0, 100.0)
+    sharp_radius: tuple[float, float] = (16.0, 35.0)
+    gentle_angle: tuple[float, float] = (10.0, 45.0)
+    gentle_radius: tuple[float, float] = (60.0, 300.0)
+
+
+def make_road(rng: np.random.Generator, length: float, shape: RoadShape = RoadShape()) -> Road:
     """Straights with slight drift, gentle bends and sharp (intersection-like) turns, smoothly joined.
 
     Segments are drawn one after another, so a longer road starts exactly like a shorter one.
@@ -341,12 +357,12 @@ def make_road(rng: np.random.Generator, length: float) -> Road:
     pieces: list[FloatArray] = [np.zeros(int(PREROLL / ROAD_STEP) + 60)]
     total = len(pieces[0])
     while total < n + 100:
-        straight = rng.uniform(40.0, 220.0)
+        straight = rng.uniform(*shape.straight)
         pieces.append(np.full(int(straight / ROAD_STEP), rng.normal(0.0, 1.0 / 1500.0)))
-        if rng.random() < 0.45:
-            angle, radius = math.radians(rng.uniform(60.0, 100.0)), rng.uniform(16.0, 35.0)
+        if rng.random() < shape.sharp_prob:
+            angle, radius = math.radians(rng.uniform(*shape.sharp_angle)), rng.uniform(*shape.sharp_radius)
         else:
-            angle, radius = math.radians(rng.uniform(10.0, 45.0)), rng.uniform(60.0, 300.0)
+            angle, radius = math.radians(rng.uniform(*shape.gentle_angle)), rng.uniform(*shape.gentle_radius)
         sign = 1.0 if rng.random() < 0.5 else -1.0
         pieces.append(np.full(max(1, int(radius * angle / ROAD_STEP)), sign / radius))
         total = sum(len(p) for p in pieces)
@@ -383,9 +399,35 @@ class Profile:
     setback: tuple[float, float]
     power_line: int = -1
     """Side (0 right, 1 left) with a line of wooden utility poles, or -1."""
+    median: float = 0.0
+    """Width of a raised median between the two directions (avenues, highways), 0 for none."""
+    median_kind: str = "planted"
+    """``planted`` (grass and trees) or ``barrier`` (a concrete wall)."""
 
     def lane_edge(self, side: int) -> float:
-        return self.lane_width / 2.0 + (self.lanes_left * self.lane_width if side else 0.0)
+        return self.lane_width / 2.0 + (self.lanes_left * self.lane_width + self.median if side else 0.0)
+
+    @property
+    def lanes_ahead(self) -> int:
+        """Lanes in the car's direction when there is a median (the oncoming ones lie beyond it)."""
+        return (self.lanes_left + 1) // 2 if self.median > 0.0 else self.lanes_left + 1
+
+    def median_span(self) -> tuple[float, float]:
+        """Left offsets (m) of the median's inner and outer edges."""
+        inner = self.lane_width / 2.0 + (self.lanes_ahead - 1) * self.lane_width
+        return inner, inner + self.median
+
+    def lane_lines(self) -> list[float]:
+        """Left offsets of the dashed lines between lanes (none where the median separates them)."""
+        lines = []
+        for lane in range(self.lanes_left):
+            d = self.lane_width / 2.0 + lane * self.lane_width
+            if self.median > 0.0 and lane >= self.lanes_ahead - 1:
+                if lane == self.lanes_ahead - 1:
+                    continue
+                d += self.median
+            lines.append(d)
+        return lines
 
     def curb(self, side: int) -> float:
         return self.lane_edge(side) + self.parking[side]
@@ -466,32 +508,39 @@ class StreetLayout:
     how objects keep off the road even where the road turns sharply or passes itself again.
     """
 
-    def __init__(self, road: Road, terrain: Terrain, rng: np.random.Generator) -> None:
+    def __init__(
+        self, road: Road, terrain: Terrain, rng: np.random.Generator, style: SceneStyle | None = None
+    ) -> None:
         self.road = road
         self.terrain = terrain
+        self.style = style or SCENES["suburban"]
         self._make_zones(rng)
         self._make_samples()
 
     # -- zones and intersections
     def _make_zones(self, rng: np.random.Generator) -> None:
-        kinds = list(ZONE_WEIGHTS)
-        weights = np.array(list(ZONE_WEIGHTS.values()))
+        style = self.style
+        kinds = list(style.zone_weights)
+        weights = np.array(list(style.zone_weights.values()))
 
-        def draw_kind() -> ZoneKind:
-            return ZoneKind(kinds[int(rng.choice(len(kinds), p=weights))])
+        def draw_profile() -> Profile:
+            kind = ZoneKind(kinds[int(rng.choice(len(kinds), p=weights))])
+            profile = _random_profile(rng, kind)
+            return style.adjust(rng, profile) if style.adjust else profile
 
-        starts, profiles = [0.0], [_random_profile(rng, draw_kind())]
+        starts, profiles = [0.0], [draw_profile()]
         crossings, half_widths = [], []
         s = PREROLL + rng.uniform(30.0, 120.0)
         while s < self.road.length - 60.0:
             _, _, curvature = self.road.sample(np.arange(s - 25.0, s + 25.0, 5.0))
             if np.max(np.abs(curvature)) < 1.0 / 80.0:
-                crossings.append(s)
-                half_widths.append(rng.uniform(3.5, 6.5))
+                if style.crossings:
+                    crossings.append(s)
+                    half_widths.append(rng.uniform(*style.crossing_half_width))
                 if rng.random() < 0.6:
                     starts.append(s)
-                    profiles.append(_random_profile(rng, draw_kind()))
-            s += rng.uniform(70.0, 240.0)
+                    profiles.append(draw_profile())
+            s += rng.uniform(*style.crossing_gap)
         self.zone_starts = np.array(starts)
         self.profiles = profiles
         self.crossings = np.array(crossings)
@@ -645,6 +694,8 @@ class _Block:
         for lo, hi in self.layout.free_intervals(self.s0, self.s1):
             profile = self.layout.profile_at(0.5 * (lo + hi))
             self.lane_markings(lo, hi, profile)
+            if profile.median > 0.0:
+                self.median(lo, hi, profile)
             for side in (0, 1):
                 self.sidewalk(lo, hi, side, profile)
                 self.frontage(lo, hi, side, profile)
@@ -659,8 +710,7 @@ class _Block:
     def lane_markings(self, lo: float, hi: float, profile: Profile) -> None:
         """Dashed lines between lanes and solid edge lines: bright paint the sensor sees in reflectance."""
         albedo = float(self.rng.uniform(0.6, 0.85))
-        for lane in range(profile.lanes_left):
-            d = profile.lane_width / 2.0 + lane * profile.lane_width
+        for d in profile.lane_lines():
             for s in np.arange(math.ceil(lo / 9.0) * 9.0, hi - 3.0, 9.0):
                 self.strip(s, s + 3.0, d - 0.06, d + 0.06, -0.05, 0.012, Surface.PAINT, albedo)
         if profile.kind in (ZoneKind.OPEN, ZoneKind.INDUSTRIAL):
@@ -668,6 +718,22 @@ class _Block:
                 d = sign * (profile.curb(side) - 0.35)
                 for s in np.arange(lo, hi - 0.5, 6.0):
                     self.strip(s, min(s + 6.0, hi), d - 0.07, d + 0.07, -0.05, 0.012, Surface.PAINT, albedo)
+
+    def median(self, lo: float, hi: float, profile: Profile) -> None:
+        """The strip between the two directions: a concrete barrier, or a raised lawn with trees."""
+        rng = self.rng
+        a, b = profile.median_span()
+        centre = 0.5 * (a + b)
+        if profile.median_kind == "barrier":
+            albedo = float(rng.uniform(0.3, 0.5))
+            for s in np.arange(lo, hi - 0.2, 4.0):
+                self.strip(s, min(s + 4.0, hi), centre - 0.3, centre + 0.3, -0.2, 0.85, Surface.WALL, albedo)
+            return
+        albedo = float(rng.uniform(0.35, 0.5))
+        for s in np.arange(lo, hi - 0.2, 4.0):
+            self.strip(s, min(s + 4.0, hi), a, b, -0.3, profile.curb_height, Surface.TERRAIN, albedo)
+        for s in self.along(float(rng.uniform(7.0, 12.0)), lo, hi, jitter=1.0):
+            _tree(self, self.road.offset([s], [centre])[0], rng.uniform(0.8, 1.1))
 
     def sidewalk(self, lo: float, hi: float, side: int, profile: Profile) -> None:
         """Raised sidewalk with its curb face, in 4 m pieces that follow the road's curve."""
@@ -758,7 +824,7 @@ class _Block:
         if profile.kind == ZoneKind.OPEN:
             return
         rng = self.rng
-        style = _BUILDING_STYLES[profile.kind]
+        style = self.layout.style.buildings.get(profile.kind, _BUILDING_STYLES[profile.kind])
         s = lo
         while s < hi - 5.0:
             if rng.random() < style.gap_prob:
@@ -1303,6 +1369,111 @@ def _clutter(block: _Block, xy: FloatArray, heading: float, kind: str) -> None:
 
 
 # ----------------------------------------------------------------------------------------------
+# Scene styles: the same building blocks with other weights and cross-sections
+
+
+@dataclass(frozen=True)
+class SceneStyle:
+    """What kind of world a scene is: how the road bends, which zones it passes through, how often
+    it crosses other streets, and style-specific changes to each zone's cross-section and buildings."""
+
+    road: RoadShape
+    zone_weights: dict[ZoneKind, float]
+    crossings: bool = True
+    crossing_gap: tuple[float, float] = (70.0, 240.0)
+    crossing_half_width: tuple[float, float] = (3.5, 6.5)
+    adjust: Callable[[np.random.Generator, Profile], Profile] | None = None
+    buildings: dict[ZoneKind, BuildingStyle] = field(default_factory=dict)
+
+
+def _avenue(rng: np.random.Generator, p: Profile) -> Profile:
+    """Two or three lanes each way around a planted median, wide sidewalks lined with trees."""
+    u = rng.uniform
+    per_direction, trees = int(rng.choice([2, 3])), u(8.0, 12.0)
+    return replace(
+        p, lanes_left=2 * per_direction - 1, lane_width=u(3.2, 3.6), median=u(2.5, 6.0),
+        sidewalk=(u(3.0, 6.0), u(3.0, 6.0)), street_trees=(trees, trees), lamp_spacing=u(25.0, 35.0),
+        power_line=-1,
+    )  # fmt: skip
+
+
+def _highway(rng: np.random.Generator, p: Profile) -> Profile:
+    """Two or three lanes each way, a concrete median barrier, shoulders with guard rails, buildings
+    (if any) far back, and only the odd lamp post."""
+    u = rng.uniform
+    per_direction = int(rng.choice([2, 3]))
+    lamps = u(50.0, 80.0) if rng.random() < 0.3 else 0.0
+    return replace(
+        p, lanes_left=2 * per_direction - 1, lane_width=u(3.5, 3.75), median=u(3.0, 8.0),
+        median_kind="barrier", parking=(u(1.0, 1.7), u(0.5, 1.0)), sidewalk=(0.0, 0.0),
+        frontage=("guardrail", "guardrail"), lamp_spacing=lamps, setback=(u(15.0, 40.0), u(15.0, 40.0)),
+        power_line=-1,
+    )  # fmt: skip
+
+
+def _oldtown(rng: np.random.Generator, p: Profile) -> Profile:
+    """A narrow lane (rarely two), narrow sidewalks and the houses right behind them."""
+    u = rng.uniform
+    return replace(
+        p, lanes_left=int(rng.random() < 0.2), lane_width=u(2.8, 3.3),
+        parking=tuple(float(rng.random() < 0.2) * u(2.0, 2.2) for _ in range(2)),
+        sidewalk=(u(0.8, 2.0), u(0.8, 2.0)), frontage=("none", "none"), street_trees=(0.0, 0.0),
+        lamp_spacing=u(15.0, 25.0), setback=(0.0, 0.0), power_line=-1,
+    )  # fmt: skip
+
+
+SCENES: dict[str, SceneStyle] = {
+    "suburban": SceneStyle(RoadShape(), ZONE_WEIGHTS),
+    "avenue": SceneStyle(
+        RoadShape((80.0, 350.0), 0.3, (60.0, 100.0), (25.0, 45.0), (5.0, 30.0), (150.0, 500.0)),
+        {ZoneKind.URBAN: 0.55, ZoneKind.RESIDENTIAL: 0.3, ZoneKind.INDUSTRIAL: 0.15, ZoneKind.OPEN: 0.0},
+        crossing_gap=(80.0, 200.0),
+        crossing_half_width=(5.0, 9.0),
+        adjust=_avenue,
+    ),
+    "highway": SceneStyle(
+        RoadShape((300.0, 1000.0), 0.0, (0.0, 0.0), (1.0, 1.0), (5.0, 35.0), (500.0, 2000.0)),
+        {ZoneKind.URBAN: 0.0, ZoneKind.RESIDENTIAL: 0.0, ZoneKind.INDUSTRIAL: 0.15, ZoneKind.OPEN: 0.85},
+        crossings=False,
+        crossing_gap=(200.0, 600.0),
+        adjust=_highway,
+    ),
+    "oldtown": SceneStyle(
+        RoadShape((25.0, 110.0), 0.7, (60.0, 100.0), (10.0, 18.0), (10.0, 45.0), (30.0, 120.0)),
+        {ZoneKind.URBAN: 0.85, ZoneKind.RESIDENTIAL: 0.15, ZoneKind.INDUSTRIAL: 0.0, ZoneKind.OPEN: 0.0},
+        crossing_gap=(40.0, 110.0),
+        crossing_half_width=(2.5, 4.5),
+        adjust=_oldtown,
+        buildings={
+            ZoneKind.URBAN: replace(
+                _BUILDING_STYLES[ZoneKind.URBAN],
+                gap_prob=0.03,
+                gap=(1.5, 4.0),
+                width=(5.0, 12.0),
+                spacing=(0.0, 0.2),
+                setback_jitter=0.2,
+                floors=(2, 5),
+                roof_gable=0.6,
+                balcony=0.15,
+            ),
+            ZoneKind.RESIDENTIAL: replace(
+                _BUILDING_STYLES[ZoneKind.RESIDENTIAL], gap_prob=0.05, spacing=(0.0, 1.5), setback_jitter=0.5
+            ),
+        },
+    ),
+}
+"""The scene styles by name; ``suburban`` is the original mix (same output for the same seed)."""
+SCENE_STYLES = tuple(SCENES)
+
+
+def scene_style(name: str) -> SceneStyle:
+    """The style called ``name``, or a ConfigError listing the valid names."""
+    if name not in SCENES:
+        raise ConfigError(f"scene must be one of {', '.join(SCENE_STYLES)}, got {name!r}")
+    return SCENES[name]
+
+
+# ----------------------------------------------------------------------------------------------
 # Ground tiles and the scene
 
 
@@ -1332,12 +1503,14 @@ def _ground_tile(layout: StreetLayout, ix: int, iy: int, rng: np.random.Generato
 class StreetScene:
     """The whole procedural world for one seed; hands out the geometry near given positions."""
 
-    def __init__(self, seed: int, length: float, cache_chunks: int = 512) -> None:
+    def __init__(self, seed: int, length: float, cache_chunks: int = 512, scene: str = "suburban") -> None:
         self.seed = seed
+        self.style_name = scene
+        style = scene_style(scene)
         road_length = PREROLL + math.ceil(max(length, 1.0) / ROAD_CHUNK) * ROAD_CHUNK
-        self.road = make_road(np.random.default_rng([seed, 1]), road_length)
+        self.road = make_road(np.random.default_rng([seed, 1]), road_length, style.road)
         self.terrain = Terrain.random(np.random.default_rng([seed, 2]))
-        self.layout = StreetLayout(self.road, self.terrain, np.random.default_rng([seed, 3]))
+        self.layout = StreetLayout(self.road, self.terrain, np.random.default_rng([seed, 3]), style)
         self._cache: OrderedDict[tuple[int, int, int], MeshPart] = OrderedDict()
         self._cache_chunks = cache_chunks
         n_blocks = math.ceil(self.road.length / BLOCK_LENGTH)
