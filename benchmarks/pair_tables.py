@@ -29,6 +29,7 @@ def main() -> None:
     warnings.simplefilter("ignore")
 
     from vcr_odom.data import open_sequence
+    from vcr_odom.model.weights import read_weights
     from vcr_odom.odometry import select_frames
     from vcr_odom.pair_benchmark import evaluate_pair_protocol, pair_sets
     from vcr_odom.registration import make_method
@@ -48,7 +49,9 @@ def main() -> None:
         method.name = f"vcr ({path.stem}, {passes} pass{'es' if passes > 1 else ''})"
         return method
 
-    for kind, pairs in pair_sets(sequence, frames, args.points, args.seed).items():
+    # Every row sees the clouds the (first) VCR weights were trained on: their input range.
+    crop = read_weights(args.weights[0])[1].input_max_range if args.weights else 80.0
+    for kind, pairs in pair_sets(sequence, frames, args.points, args.seed, max_range=crop).items():
         methods = ["icp10", "fpfh", tuned_fpfh(), *[vcr(w, p) for w in args.weights for p in (1, 2)]]
         methods += [PolishedRegistrar(tuned_fpfh(), SparseIcp())]
         # As compare's vcr+icp: one network pass before the polish (POLISHED_PASSES).

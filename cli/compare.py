@@ -24,6 +24,7 @@ from vcr_odom.model.weights import default_weights_path, read_weights
 from vcr_odom.odometry import InitialGuess
 from vcr_odom.pair_benchmark import PAIR_KINDS, evaluate_pair_protocol, pair_sets
 from vcr_odom.pipeline import MethodOutcome, compare_methods, parse_method_spec
+from vcr_odom.preprocess import PreprocessConfig
 from vcr_odom.registration.polish import PAIR_POLISHES
 from vcr_odom.results import create_result_folder, provenance, write_json
 
@@ -201,7 +202,15 @@ def compare_pairs(
     if not kinds:
         return
     with frame_progress(f"building pairs ({pair_points} points)", len(indices)) as advance:
-        pair_datasets = pair_sets(sequence, indices, pair_points, seed, kinds, progress=lambda *_: advance())
+        pair_datasets = pair_sets(
+            sequence,
+            indices,
+            pair_points,
+            seed,
+            kinds,
+            progress=lambda *_: advance(),
+            max_range=pair_input_range(pairwise, options),
+        )
     report: dict[str, Any] = {}
     for kind, pairs in pair_datasets.items():
         with frame_progress(f"registering {kind} pairs", len(pairs) * len(pairwise)) as advance:
@@ -216,6 +225,16 @@ def compare_pairs(
 def _works_on_pairs(spec: str) -> bool:
     name, refine = parse_method_spec(spec)
     return name != "kiss-icp" and refine in ("none", *PAIR_POLISHES)
+
+
+def pair_input_range(methods: list[str], options: dict[str, dict[str, Any]] | None) -> float:
+    """The VCR weights' input range when a VCR row is compared (every method then sees the clouds the
+    network was trained on), else ``run``'s 80 m crop."""
+    for spec in methods:
+        if parse_method_spec(spec)[0] == "vcr":
+            weights = (options or {}).get(spec, {}).get("weights")
+            return read_weights(weights or default_weights_path("default"))[1].input_max_range
+    return PreprocessConfig().max_range
 
 
 def default_pair_points(methods: list[str], weights: Path | None) -> int:

@@ -102,12 +102,15 @@ def pair_sets(
     seed: int = 0,
     kinds: Sequence[str] = PAIR_KINDS,
     progress: Callable[[int, int], None] | None = None,
+    max_range: float = 80.0,
 ) -> dict[str, PairDataset]:
-    """Pairs of each kind in ``kinds`` from one frame cache (each frame pre-processed once).
+    """Pairs of each kind in ``kinds`` from one frame cache (each frame pre-processed once, points
+    within ``max_range`` metres: the VCR weights' ``input_max_range`` when VCR is compared).
 
     Consecutive pairs need the sequence's ground-truth poses and are one fewer than the frames; with
     frames ``a, a+s, a+2s, ...`` they are ``s`` frames apart."""
     from vcr_odom.data.pairs import PairConfig, PairDataset, build_frame_cache
+    from vcr_odom.preprocess import PreprocessConfig
 
     unknown = sorted(set(kinds) - set(PAIR_KINDS))
     if unknown or not kinds:
@@ -116,7 +119,8 @@ def pair_sets(
     gaps = sorted({b - a for a, b in pairwise(frames)})
     if "consecutive" in kinds and (len(gaps) != 1 or gaps[0] < 1):
         raise ConfigError(f"consecutive pairs need evenly spaced increasing frames; got gaps {gaps}")
-    same_scan = PairConfig(protocol="same-scan", num_points=num_points, seed=seed)
+    crop = PreprocessConfig(n_points=num_points, max_range=max_range)
+    same_scan = PairConfig(protocol="same-scan", num_points=num_points, seed=seed, preprocess=crop)
     cache = build_frame_cache(sequence, frames, same_scan, copies=2, progress=progress)
     sets: dict[str, PairDataset] = {}
     if "same-scan" in kinds:

@@ -17,6 +17,10 @@ Deviation: both attentions use learned query/key/value projections, several head
 the query from Ψ2, which only type-checks when N1 = N2; we read it as the usual non-local operation.
 Deviation: residual connections with pre-LayerNorm and a final LayerNorm (without bias, which would
 cancel in the feature differences of the affinity), where the paper only says "LayerNorm".
+Deviation (``distance_bias``): the self-attention logits of each head get a learned function of the
+distance between the two points (Gaussian radial basis, one weight per basis and head). A distance is
+unchanged by any rigid motion, so the features stay invariant while each point learns what lies how
+far around it: the global context that absolute xyz used to give, without the sensor-frame position.
 """
 
 from __future__ import annotations
@@ -41,27 +45,59 @@ class MultiHeadAttention(nn.Module):
         b, n, c = x.shape
         return x.view(b, n, self.heads, c // self.heads).transpose(1, 2)
 
-    def forward(self, query: Tensor, context: Tensor) -> Tensor:
+    def forward(self, query: Tensor, context: Tensor, bias: Tensor | None = None) -> Tensor:
+        """``bias`` ``(B, heads, N, M)`` is added to the attention logits."""
+        q = self._split(self.query(query))
         attended = F.scaled_dot_product_attention(
-            self._split(self.query(query)), self._split(self.key(context)), self._split(self.value(context))
+            q,
+            self._split(self.key(context)),
+            self._split(self.value(context)),
+            attn_mask=None if bias is None else bias.to(q.dtype),
         )
         b, _, n, _ = attended.shape
         return self.out(attended.transpose(1, 2).reshape(b, n, -1))
 
 
+class DistanceBias(nn.Module):
+    """Pairwise distances ``(B, N, N)`` (metres) -> per-head attention logit biases ``(B, heads, N, N)``."""
+
+    CENTRES_M = (0.0, 75.0, 6)
+    """Gaussian centres (start, stop, count) over the distances a 2 x 40 m crop can hold."""
+
+    def __init__(self, heads: int) -> None:
+        super().__init__()
+        start, stop, count = self.CENTRES_M
+        self.register_buffer("centres", torch.linspace(start, stop, count), persistent=False)
+        self.width = (stop - start) / (count - 1)
+        self.mix = nn.Linear(count, heads, bias=False)
+        nn.init.zeros_(self.mix.weight)  # starts as plain attention
+
+    def forward(self, points: Tensor) -> Tensor:
+        distance = torch.cdist(points.float(), points.float())
+        basis = torch.exp(-0.5 * ((distance.unsqueeze(-1) - self.centres) / self.width) ** 2)
+        return self.mix(basis).permute(0, 3, 1, 2)
+
+
 class SelfAttention(nn.Module):
     """R ``(B, N, C)`` -> (Ψ = w ⊙ F ``(B, N, C)``, w ``(B, N)``)."""
 
-    def __init__(self, dim: int, heads: int) -> None:
+    def __init__(self, dim: int, heads: int, distance_bias: bool = False) -> None:
         super().__init__()
         self.norm = nn.LayerNorm(dim)
         self.attention = MultiHeadAttention(dim, heads)
+        self.distance_bias = DistanceBias(heads) if distance_bias else None
         self.weight_norm = nn.LayerNorm(dim)
         self.weight_mlp = nn.Sequential(nn.Linear(dim, dim // 2), nn.ReLU(), nn.Linear(dim // 2, 1))
 
-    def forward(self, features: Tensor) -> tuple[Tensor, Tensor]:
+    def forward(self, features: Tensor, points: Tensor | None = None) -> tuple[Tensor, Tensor]:
+        """``points`` ``(B, N, 3)`` metres: needed with a distance bias, ignored without."""
         normed = self.norm(features)
-        fused = features + self.attention(normed, normed)
+        bias = None
+        if self.distance_bias is not None:
+            if points is None:
+                raise ValueError("a self-attention with a distance bias needs the points")
+            bias = self.distance_bias(points)
+        fused = features + self.attention(normed, normed, bias)
         weight = torch.sigmoid(self.weight_mlp(self.weight_norm(fused))).squeeze(-1)
         return fused * weight.unsqueeze(-1), weight
 

@@ -6,6 +6,9 @@ at least 10 pairs/s at batch 1 on 2 CPU cores (see ``vcr_odom.model.profile``).
 
 Deviation: the paper does not give γ (false-match weight of Loss_cor), the temperature of the soft
 pointer, nor the input scaling; the values here are ours and are recorded with the weights.
+
+Weight files written before a field existed load with that field's :data:`LEGACY_VALUES` (the behaviour
+the file was trained with), not with today's default.
 """
 
 from __future__ import annotations
@@ -17,6 +20,18 @@ from typing import Any
 from vcr_odom.errors import ConfigError
 
 PRESETS = ("paper", "default")
+ENCODERS = ("invariant", "xyz")
+"""``invariant``: features from relative geometry only (``vcr_odom.model.invariant_encoder``), unchanged
+by a translation or a rotation about z of the cloud; ``xyz``: the first layer sees absolute coordinates
+(``vcr_odom.model.encoder``, the weights shipped before the invariant encoder)."""
+
+LEGACY_VALUES: dict[str, object] = {
+    "encoder": "xyz",
+    "input_max_range": 80.0,
+    "robust_iterations": 0,
+    "distance_bias": False,
+}
+"""What a weight file that lacks a field was trained with."""
 
 
 @dataclass(frozen=True)
@@ -32,6 +47,14 @@ class VcrConfig:
       ``ff_dim``: feed-forward width of the attention blocks (the paper's "embedding dimension 1024").
       ``coordinate_scale``: metres per network unit; xyz is divided by it before the first layer so a
       KITTI scan (tens of metres) lands in the range the initialisation expects.
+      ``encoder``: one of :data:`ENCODERS`. ``distance_bias``: self-attention logits get a learned
+      function of the distance between the two points (invariant to any rigid motion), so a point's
+      feature can say where it lies relative to the rest of the scene, not in the sensor frame.
+    Input:
+      ``input_max_range``: the network sees points within this distance of the sensor (metres; the
+      ``run`` crop for the other methods is 80 m). Farthest point sampling over 2-80 m spends ~28 % of
+      512 points on the sparse rings beyond 40 m (1 % of a scan's points), whose pattern moves with the
+      sensor and has no counterpart metres later.
     Virtual correspondences:
       ``top_k_fraction``: K = round(fraction * N) key points of the source (paper: 896/1024 = 0.875).
       ``top_j``: candidates per key point (paper: 32; must be > 1, J = 1 has no gradient).
@@ -41,6 +64,11 @@ class VcrConfig:
       of ~20 to the far points and ~1 among neighbours; sharper pointers also shrink the bias of
       virtual points at the edges of a sparse scan (0.1 left ~5 cm of z bias on a real KITTI pair).
       ``weighted_svd``: weight each key point by its self-attention weight in the SVD (paper: no).
+      ``robust_iterations``: after the paper's SVD, this many re-solves with Cauchy weights
+      ``1 / (1 + (r / c)²)`` of each key point's residual r, c halving down to ``robust_scale``
+      (metres). Key points without a counterpart in the other scan get a virtual point somewhere in
+      its cloud; with full weight they pull the estimate towards the two clouds' centroids, i.e.
+      towards zero motion. 0 = the paper's single unweighted SVD.
     Loss:
       ``gamma``: the paper's γ, the weight of the false-match term of Loss_cor (dimensionless).
       ``match_radius``: None = the paper's true-match test (the GT-aligned virtual point's nearest
@@ -60,6 +88,11 @@ class VcrConfig:
     top_j: int = 16
     temperature: float = 0.01
     weighted_svd: bool = False
+    encoder: str = "invariant"
+    distance_bias: bool = True
+    input_max_range: float = 40.0
+    robust_iterations: int = 3
+    robust_scale: float = 0.5
     gamma: float = 1.0
     match_radius: float | None = None
 
@@ -89,8 +122,16 @@ class VcrConfig:
             and self.match_radius > 0
         ):
             raise ConfigError(f"match_radius must be None or a number > 0; got {self.match_radius!r}")
-        if not isinstance(self.weighted_svd, bool):
-            raise ConfigError(f"weighted_svd must be a bool; got {self.weighted_svd!r}")
+        for name in ("weighted_svd", "distance_bias"):
+            if not isinstance(getattr(self, name), bool):
+                raise ConfigError(f"{name} must be a bool; got {getattr(self, name)!r}")
+        if self.encoder not in ENCODERS:
+            raise ConfigError(f"encoder must be one of {', '.join(ENCODERS)}; got {self.encoder!r}")
+        _check_int(self, "robust_iterations", 0)
+        for name in ("input_max_range", "robust_scale"):
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+                raise ConfigError(f"{name} must be a finite number > 0; got {value!r}")
 
     def key_points(self, n: int) -> int:
         """K for a cloud of ``n`` points: round(top_k_fraction * n), at least 3 and at most n."""
@@ -122,14 +163,15 @@ class VcrConfig:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> VcrConfig:
-        """Inverse of :meth:`to_dict`; unknown keys raise ConfigError (a file for another model)."""
+        """Inverse of :meth:`to_dict`; unknown keys raise ConfigError (a file for another model); a
+        missing key of :data:`LEGACY_VALUES` takes the value older files were trained with."""
         if not isinstance(data, dict):
             raise ConfigError(f"a VcrConfig dict is needed; got {type(data).__name__}")
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(data) - known)
         if unknown:
             raise ConfigError(f"unknown VcrConfig field(s): {', '.join(unknown)}")
-        return cls(**data)
+        return cls(**(LEGACY_VALUES | data))
 
     def with_changes(self, **changes: Any) -> VcrConfig:
         """A copy with some fields changed (validated again)."""

@@ -11,7 +11,9 @@ the J candidates (DESIGN), and use one affinity (on Φ) for selection and pointe
 raw one (DESIGN). Key points are ranked by max affinity + log w (the paper: max affinity only), so the
 self-attention weight removes hard-to-match points as §IV-B intends.
 Deviation: the SVD head accepts optional per-point weights (weighted Kabsch); the paper's E(R, t) is
-unweighted, which is the default.
+unweighted, which is the default. Deviation (``robust_iterations`` > 0): the paper's solve is followed
+by a few iteratively reweighted ones (:func:`robust_procrustes`), which give key points without a
+counterpart in the other scan little say.
 """
 
 from __future__ import annotations
@@ -109,6 +111,35 @@ def weighted_procrustes(
     fix = torch.cat([fix[:, :2], sign.unsqueeze(-1)], dim=1)
     rotation = ((v * fix.unsqueeze(1)) @ u.transpose(1, 2)).to(source.dtype)
     translation = target_mean.squeeze(1) - (rotation @ source_mean.transpose(1, 2)).squeeze(-1)
+    return rotation, translation
+
+
+def robust_procrustes(
+    source: Tensor,
+    target: Tensor,
+    weights: Tensor | None = None,
+    iterations: int = 0,
+    scale: float = 0.5,
+) -> tuple[Tensor, Tensor]:
+    """:func:`weighted_procrustes`, then ``iterations`` re-solves with Cauchy weights of each pair's
+    residual ``r``: ``w / (1 + (r / c)²)`` with ``c`` halving each round down to ``scale`` (metres).
+
+    Why: a key point with no counterpart in the other scan still gets a virtual point, somewhere in
+    that cloud; at full weight such points pull the estimate towards the centroids' difference, which
+    for two scans around their own sensors means towards zero motion. The robust weights are
+    detached (iteratively reweighted least squares): the gradient flows through the last solve.
+    """
+    rotation, translation = weighted_procrustes(source, target, weights)
+    base = (
+        torch.ones(source.shape[:2], dtype=source.dtype, device=source.device) if weights is None else weights
+    )
+    for round_index in range(iterations):
+        c = scale * 2.0 ** (iterations - 1 - round_index)
+        with torch.no_grad():
+            moved = source @ rotation.transpose(1, 2) + translation.unsqueeze(1)
+            residual = (moved - target).norm(dim=-1)
+            robust = 1.0 / (1.0 + (residual / c) ** 2)
+        rotation, translation = weighted_procrustes(source, target, base * robust)
     return rotation, translation
 
 

@@ -21,11 +21,12 @@ from vcr_odom.model.attention import CrossAttention, SelfAttention
 from vcr_odom.model.config import VcrConfig
 from vcr_odom.model.correspondence import (
     feature_affinity,
+    robust_procrustes,
     to_homogeneous,
     virtual_correspondences,
-    weighted_procrustes,
 )
 from vcr_odom.model.encoder import LpdEncoder
+from vcr_odom.model.invariant_encoder import InvariantEncoder
 
 
 @dataclass
@@ -55,8 +56,9 @@ class VCRNet(nn.Module):
         super().__init__()
         self.config = config or VcrConfig()
         c = self.config
-        self.encoder = LpdEncoder(c.k, c.point_dim, c.graph_dim, c.spatial_dim, c.feature_dim)
-        self.self_attention = SelfAttention(c.feature_dim, c.heads)
+        encoder = InvariantEncoder if c.encoder == "invariant" else LpdEncoder
+        self.encoder = encoder(c.k, c.point_dim, c.graph_dim, c.spatial_dim, c.feature_dim)
+        self.self_attention = SelfAttention(c.feature_dim, c.heads, distance_bias=c.distance_bias)
         self.cross_attention = CrossAttention(c.feature_dim, c.heads, c.ff_dim)
         self.log_temperature = nn.Parameter(torch.tensor(math.log(c.temperature)))
 
@@ -73,8 +75,8 @@ class VCRNet(nn.Module):
         self, source_points: Tensor, source_features: Tensor, target_points: Tensor, target_features: Tensor
     ) -> VcrOutput:
         """Attention, virtual correspondences and SVD on already-encoded clouds."""
-        psi_source, w_source = self.self_attention(source_features)
-        psi_target, w_target = self.self_attention(target_features)
+        psi_source, w_source = self.self_attention(source_features, source_points)
+        psi_target, w_target = self.self_attention(target_features, target_points)
         phi_source, phi_target = self.cross_attention(psi_source, psi_target)
         temperature = self.temperature
         affinity = feature_affinity(phi_source, phi_target, temperature)
@@ -88,7 +90,13 @@ class VCRNet(nn.Module):
         )
         key_weights = torch.gather(w_source, 1, vcp.key_indices)
         svd_weights = key_weights if self.config.weighted_svd else None
-        rotation, translation = weighted_procrustes(vcp.key_points, vcp.virtual_points, svd_weights)
+        rotation, translation = robust_procrustes(
+            vcp.key_points,
+            vcp.virtual_points,
+            svd_weights,
+            iterations=self.config.robust_iterations,
+            scale=self.config.robust_scale,
+        )
         return VcrOutput(
             rotation=rotation,
             translation=translation,

@@ -18,6 +18,7 @@ from numpy.typing import NDArray
 from vcr_odom.data.base import Points
 from vcr_odom.errors import ConfigError
 from vcr_odom.geometry import Transform, project_to_se3
+from vcr_odom.model.config import VcrConfig
 from vcr_odom.model.weights import default_weights_path, load_weights
 from vcr_odom.preprocess import PreprocessConfig, preprocess
 from vcr_odom.registration.base import DEGENERATE, RegistrationResult
@@ -80,8 +81,9 @@ class VcrRegistrar:
         self.model, self.config, self.metadata = load_weights(path, device=str(self.device))
         self.model.eval()
         self.weights_path = path
-        # Pre-processing as in training: ground removed, exactly N points by farthest point sampling.
-        self.preprocess_config = PreprocessConfig(n_points=self.config.num_points, method="fps", seed=seed)
+        # Pre-processing as in training: ground removed, exactly N points by farthest point sampling
+        # within the weights' input range.
+        self.preprocess_config = network_preprocess_config(self.config, seed)
 
     def network_input(self, points: Points) -> NDArray[np.float32]:
         """Exactly N points. A cloud of exactly N points is taken as already pre-processed (the pairs
@@ -141,6 +143,13 @@ class VcrRegistrar:
                 info["status"] = DEGENERATE
             results.append(RegistrationResult(transform.copy(), info=info))
         return results
+
+
+def network_preprocess_config(config: VcrConfig, seed: int = 0) -> PreprocessConfig:
+    """What the network with ``config`` is fed, in training caches and at inference alike."""
+    return PreprocessConfig(
+        n_points=config.num_points, max_range=config.input_max_range, method="fps", seed=seed
+    )
 
 
 def _project_finite(transform: torch.Tensor) -> NDArray[np.float64]:
