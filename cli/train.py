@@ -19,6 +19,7 @@ from vcr_odom.data import open_sequence
 from vcr_odom.data.pairs import FrameCache, PairConfig, build_frame_cache, train_val_datasets
 from vcr_odom.model.config import VcrConfig
 from vcr_odom.odometry import select_frames
+from vcr_odom.registration.vcr import network_preprocess_config
 from vcr_odom.train import DEVICES, ProgressEvent, TrainConfig, pretrain, train
 
 F = Callable[..., Any]
@@ -99,7 +100,9 @@ def _build_cache(
 ) -> FrameCache:
     sequence = open_sequence(seq, data_root=data_root)
     indices = select_frames(len(sequence), frames, stride)
-    config = PairConfig(num_points=model_config.num_points)
+    config = PairConfig(
+        num_points=model_config.num_points, preprocess=network_preprocess_config(model_config)
+    )
     with _bar(f"pre-processing {sequence.name}", len(indices)) as advance:
         return build_frame_cache(
             sequence, indices, config=config, copies=copies, progress=lambda done, _: advance(done)
@@ -130,6 +133,19 @@ def _training_options(function: F) -> F:
                 default=True,
                 show_default=True,
                 help="Odometry pairs: add the same-scan random transform on top of the GT motion.",
+            ),
+            click.option(
+                "--max-motion",
+                type=click.FloatRange(min=0, min_open=True),
+                default=None,
+                help="Odometry pairs: every pair of frames at most this many metres apart (instead of "
+                "pairs 1, 2, 3 and 5 frames apart).",
+            ),
+            click.option(
+                "--reverse/--no-reverse",
+                default=False,
+                show_default=True,
+                help="Odometry pairs: swap source and target of a random half of the pairs each epoch.",
             ),
             click.option(
                 "--val-fraction",
@@ -185,6 +201,8 @@ def _run_training(entry: Callable[..., Any], options: dict[str, Any], **extra: A
             num_points=model_config.num_points,
             augment=options["augment"],
             seed=options["seed"],
+            max_motion=options["max_motion"],
+            reverse=options["reverse"],
         )
         for protocol in protocols
     ]

@@ -316,3 +316,54 @@ def test_real_kitti_pairs(kitti_sample_root: Path) -> None:
             assert_aligned(dataset.sample(index), sequence.frame(dataset.pairs[index][0]))
     poses = sequence.gt_poses
     assert np.allclose(cache.relative_pose(10, 12), invert(poses[10]) @ poses[12])
+
+
+def _line_cache(steps: list[float]) -> FrameCache:
+    """Frames driven along x with the given steps (metres), every frame the same toy cloud."""
+    x = np.concatenate([[0.0], np.cumsum(steps)])
+    poses = np.tile(np.eye(4), (len(x), 1, 1))
+    poses[:, 0, 3] = x
+    points = np.random.default_rng(0).uniform(-10, 10, (len(x), 2, 8, 3)).astype(np.float32)
+    return FrameCache(points=points, frame_indices=list(range(len(x))), gt_poses=poses, name="line")
+
+
+def test_pairs_by_motion_cover_every_pair_within_the_distance() -> None:
+    # A stop (two zero steps), slow and fast stretches.
+    cache = _line_cache([0.0, 0.0, 1.0, 2.0, 6.0, 9.0, 0.5])
+    positions = cache.gt_poses[:, 0, 3]
+    expected = [
+        (i, j)
+        for i in range(len(positions))
+        for j in range(i + 1, len(positions))
+        if abs(positions[j] - positions[i]) <= 9.0
+    ]
+    dataset = PairDataset(cache, PairConfig(protocol="odometry", num_points=8, max_motion=9.0))
+    assert sorted((target, source) for source, target in dataset.pairs) == expected
+    assert (0, 1) in expected and (0, 2) in expected  # the stop gives pairs that did not move
+    for index in range(len(dataset)):
+        sample = dataset.sample(index)
+        assert np.linalg.norm(sample["transform"][:3, 3]) <= 9.0 + 1e-9
+
+
+def test_reverse_swaps_source_and_target_with_the_inverse_motion() -> None:
+    cache = _line_cache([3.0, 3.0])
+    plain = PairDataset(cache, PairConfig(protocol="odometry", num_points=8, max_motion=7.0))
+    swapped = PairDataset(cache, PairConfig(protocol="odometry", num_points=8, max_motion=7.0, reverse=True))
+    reversed_seen = 0
+    for epoch in range(4):
+        swapped.set_epoch(epoch)
+        for index in range(len(swapped)):
+            sample = swapped.sample(index)
+            source_frame, target_frame = swapped.pairs[index]
+            truth = cache.relative_pose(target_frame, source_frame)
+            if sample["meta"].endswith("+reversed"):
+                reversed_seen += 1
+                np.testing.assert_allclose(sample["transform"], np.linalg.inv(truth), atol=1e-12)
+            else:
+                np.testing.assert_allclose(sample["transform"], truth, atol=1e-12)
+    assert 0 < reversed_seen < 4 * len(plain)
+
+
+def test_max_motion_must_be_positive() -> None:
+    with pytest.raises(ConfigError, match="max_motion"):
+        PairConfig(protocol="odometry", max_motion=0.0)

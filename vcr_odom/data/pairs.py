@@ -11,7 +11,11 @@ Two protocols (DESIGN.md, "VCR-Net: where the paper and the released code differ
   down-sampled independently; **source = frame j, target = frame i, ``transform = inv(P_i) @ P_j``**
   (``T_i_j`` from the LiDAR-frame ground truth). With ``augment=True`` the target is also moved by a
   random ``M`` of the same ranges and ``transform = M @ T_i_j``, so the network cannot rely on the
-  small motion between consecutive frames.
+  small motion between consecutive frames. With ``max_motion`` set, the pairs are instead every
+  ``(i, j)``, ``i < j``, whose ground-truth motion is at most ``max_motion`` metres (a stop gives
+  pairs that did not move; a fast stretch few of them), so training covers 0 to ``max_motion`` m
+  whatever the frame rate and speed. ``reverse=True`` swaps source and target of a random half of
+  the samples each epoch (the motion then points backwards).
 
 Every sample's ``transform`` is ``T_target_source``: ``target ≈ R @ source + t``.
 
@@ -103,6 +107,20 @@ def pair_indices(
     return [(i, i + d) for d in sorted(set(gaps)) for i in sorted(available) if i + d in available]
 
 
+def pairs_within(cache: FrameCache, frames: Sequence[int], max_motion: float) -> list[tuple[int, int]]:
+    """Every ``(i, j)``, ``i < j`` in ``frames``, whose ground-truth translation is at most
+    ``max_motion`` metres, sorted."""
+    if cache.gt_poses is None:
+        raise ConfigError(f"pairs by motion need ground-truth poses; {cache.name} has none")
+    ordered = sorted(int(f) for f in frames)
+    positions = (
+        np.stack([cache.gt_poses[cache.row(f)][:3, 3] for f in ordered]) if ordered else np.zeros((0, 3))
+    )
+    distance = np.linalg.norm(positions[:, None] - positions[None], axis=-1)
+    rows, cols = np.nonzero(np.triu(distance <= max_motion, k=1))
+    return [(ordered[r], ordered[c]) for r, c in zip(rows.tolist(), cols.tolist(), strict=True)]
+
+
 def split_frames(
     length: int, val_fraction: float = 0.2, block: int | None = None
 ) -> tuple[list[int], list[int]]:
@@ -160,8 +178,14 @@ class PairConfig:
     tilt_deg: float = 5.0
     horizontal_m: float = 5.0
     vertical_m: float = 1.0
+    max_motion: float | None = None
+    reverse: bool = False
 
     def __post_init__(self) -> None:
+        if self.max_motion is not None and not (math.isfinite(self.max_motion) and self.max_motion > 0):
+            raise ConfigError(
+                f"max_motion must be None or a finite number of metres > 0; got {self.max_motion!r}"
+            )
         if self.protocol not in PROTOCOLS:
             raise ConfigError(f"protocol must be one of {', '.join(PROTOCOLS)}; got {self.protocol!r}")
         if int(self.num_points) != self.num_points or self.num_points < 1:
@@ -430,6 +454,8 @@ class PairDataset(Dataset):
             available = [f for f in available if f in wanted]
         if config.protocol == "same-scan":
             self.pairs = [(f, f) for f in sorted(available)]
+        elif config.max_motion is not None:
+            self.pairs = [(j, i) for i, j in pairs_within(cache, available, config.max_motion)]
         else:
             top = max(available, default=-1) + 1
             self.pairs = [(j, i) for i, j in pair_indices(top, config.gaps, available)]
@@ -464,6 +490,9 @@ class PairDataset(Dataset):
             target = cache.copy_points(target_frame, target_copy)
             transform = cache.relative_pose(target_frame, source_frame)
             meta = f"{cache.name}:{source_frame}->{target_frame} odometry"
+            if config.reverse and rng.random() < 0.5:
+                source, target, transform = target, source, invert(transform)
+                meta += "+reversed"
             if config.augment:
                 motion = random_rigid_transform(rng, **config.transform_ranges())
                 target = _apply(motion, target)
@@ -511,6 +540,7 @@ __all__ = [
     "PreprocessedFrames",
     "build_frame_cache",
     "pair_indices",
+    "pairs_within",
     "random_rigid_transform",
     "split_frames",
 ]
