@@ -24,6 +24,8 @@ class TrainConfig:
     ``rmse`` (rotation RMSE / 1° + translation RMSE / 0.25 m, the issue's targets) for best.safetensors.
     ``init_weights``: start from these weights (e.g. a pre-training's best.safetensors).
     ``deterministic``: torch.use_deterministic_algorithms, for bit-reproducible runs.
+    ``time_limit_s``: no new epoch starts once the mean epoch so far would end past this many seconds
+    of this run (a lent GPU's time is counted); None = every epoch.
     The ``triplet_*`` fields are Algorithm 1's (pre-training only).
     """
 
@@ -43,12 +45,17 @@ class TrainConfig:
     select_on: str = "loss"
     init_weights: Path | None = None
     deterministic: bool = False
+    time_limit_s: float | None = None
     triplet_anchors: int = 32
     triplet_negatives: int = 8
     triplet_margin: float = 0.5
     triplet_norm_weight: float = 0.05
 
     def __post_init__(self) -> None:
+        if self.time_limit_s is not None and not (math.isfinite(self.time_limit_s) and self.time_limit_s > 0):
+            raise ConfigError(
+                f"time_limit_s must be None or a number of seconds > 0; got {self.time_limit_s!r}"
+            )
         self.out = Path(self.out)
         self.init_weights = Path(self.init_weights) if self.init_weights is not None else None
         for name in ("epochs", "batch_size", "log_every", "triplet_anchors", "triplet_negatives"):

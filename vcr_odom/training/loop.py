@@ -9,6 +9,7 @@ run continued with ``resume=True`` computes the same parameters as one that neve
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -80,7 +81,13 @@ def fit(
     ctx = init_distributed(config.device)
     try:
         session = _start(task, model_config, config, resume, ctx)
+        started = time.perf_counter()
         for epoch in range(session.start_epoch, config.epochs):
+            done = epoch - session.start_epoch
+            if done and config.time_limit_s is not None:
+                elapsed = time.perf_counter() - started
+                if elapsed * (done + 1) / done > config.time_limit_s:
+                    break
             if progress is not None and ctx.main and epoch == session.start_epoch:
                 progress(ProgressEvent("start", task.name, epoch, config.epochs))
             train_metrics = _train_epoch(session, train_dataset, epoch, progress)

@@ -1,0 +1,125 @@
+"""The experiments behind VCR-Net's motion bias: one figure per lead, for any weight files.
+
+Not a test. Each lead of the bias (the network shrinking motion towards zero between scans metres apart)
+gets its own measurement on the same frames, VCR alone, one pass:
+
+- ``shift``: relative change of the encoder's features when the whole cloud is shifted by 5 and 20 m
+  or turned by 30° about z (0 for features that depend on relative geometry only);
+- ``far``: share of the network's N points beyond 40 m with the weights' own input range, and with
+  the old 80 m crop;
+- ``range``: the gap sweep with the weights' input range and with the other crop (80 / 40 m);
+- ``robust``: the gap sweep with the paper's single unweighted SVD (0 robust rounds) and with 4.
+
+    .venv/bin/python benchmarks/bias_leads.py --data-root ../shared/data/kitti-sample --seq 00 \\
+        --frames 40:60 --weights weights/vcr-default.safetensors --gap 1 --gap 5 --gap 10
+
+prints one markdown table per lead.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from sequence_args import sequence_parser
+
+SHIFTS = (
+    ("shift 5 m", (5.0, 0.0, 0.0), 0.0),
+    ("shift 20 m", (14.0, 14.0, 0.5), 0.0),
+    ("yaw 30°", (0.0,) * 3, 30.0),
+)
+
+
+def vcr_variant(path: Path, label: str, **overrides: Any) -> Any:
+    """A VCR registrar (one pass) whose inference-time settings are overridden (not its weights)."""
+    from vcr_odom.registration import make_method
+    from vcr_odom.registration.vcr import network_preprocess_config
+
+    method = make_method("vcr", weights=path, device="cpu", passes=1)
+    config = replace(method.config, **overrides)
+    method.config = config
+    method.model.config = config
+    method.preprocess_config = network_preprocess_config(config)
+    method.name = f"{path.stem} ({label})"
+    return method
+
+
+def feature_shift(method: Any, frames: list[np.ndarray]) -> dict[str, float]:
+    """Mean relative feature change ‖f(moved) - f‖ / ‖f‖ over the frames, per motion of :data:`SHIFTS`."""
+    import torch
+
+    from vcr_odom.geometry import make_transform, rotation_from_euler_zyx
+
+    changes: dict[str, list[float]] = {label: [] for label, _, _ in SHIFTS}
+    with torch.inference_mode():
+        for frame in frames:
+            xyz = method.network_input(frame)
+            base = method.model.encode(torch.as_tensor(xyz)[None])
+            for label, shift, yaw in SHIFTS:
+                motion = make_transform(rotation_from_euler_zyx(math.radians(yaw), 0.0, 0.0), shift)
+                moved = (xyz.astype(np.float64) @ motion[:3, :3].T + motion[:3, 3]).astype(np.float32)
+                features = method.model.encode(torch.as_tensor(moved)[None])
+                changes[label].append(float((features - base).norm() / base.norm()))
+    return {label: float(np.mean(values)) for label, values in changes.items()}
+
+
+def far_share(method: Any, frames: list[np.ndarray], max_range: float) -> float:
+    """Share of the network's points farther than 40 m from the sensor with an input crop of ``max_range``."""
+    from vcr_odom.preprocess import preprocess
+    from vcr_odom.registration.vcr import network_preprocess_config
+
+    config = network_preprocess_config(replace(method.config, input_max_range=max_range))
+    shares = [float((np.linalg.norm(preprocess(f, config)[:, :3], axis=1) > 40.0).mean()) for f in frames]
+    return float(np.mean(shares))
+
+
+def main() -> None:
+    parser = sequence_parser(__doc__)
+    parser.add_argument("--weights", type=Path, action="append", default=[], help="VCR weights (repeat)")
+    parser.add_argument("--gap", type=int, action="append", default=[], help="frames apart (repeat)")
+    args = parser.parse_args()
+    warnings.simplefilter("ignore")
+    import torch
+
+    torch.set_num_threads(1)
+    from vcr_odom.data import open_sequence
+    from vcr_odom.gap_sweep import markdown_table, run_gap_sweep
+    from vcr_odom.model.weights import default_weights_path
+    from vcr_odom.odometry import select_frames
+
+    sequence = open_sequence(args.seq, data_root=args.data_root)
+    selection = select_frames(len(sequence), args.frames)
+    raw = [sequence.frame(i) for i in selection]
+    gaps = args.gap or [1, 5, 10]
+    for path in args.weights or [default_weights_path("default")]:
+        own = vcr_variant(path, "as trained")
+        print(
+            f"\n## {path.name}: encoder {own.config.encoder}, input range {own.config.input_max_range:g} m, "
+            f"{own.config.robust_iterations} robust rounds\n"
+        )
+        print("| feature change | " + " | ".join(label for label, _, _ in SHIFTS) + " |")
+        print("|---|" + "---|" * len(SHIFTS))
+        shifts = feature_shift(own, raw)
+        print(
+            "| relative ‖Δf‖ / ‖f‖ | " + " | ".join(f"{shifts[label]:.2e}" for label, _, _ in SHIFTS) + " |"
+        )
+        print(
+            f"\npoints beyond 40 m: {100 * far_share(own, raw, own.config.input_max_range):.1f} % with the "
+            f"{own.config.input_max_range:g} m crop, {100 * far_share(own, raw, 80.0):.1f} % with 80 m\n"
+        )
+        other_range = 40.0 if own.config.input_max_range > 40.0 else 80.0
+        other_robust = 0 if own.config.robust_iterations else 4
+        variants = [
+            own,
+            vcr_variant(path, f"{other_range:g} m crop", input_max_range=other_range),
+            vcr_variant(path, f"{other_robust} robust rounds", robust_iterations=other_robust),
+        ]
+        print(markdown_table(run_gap_sweep(sequence, selection, variants, gaps)))
+
+
+if __name__ == "__main__":
+    main()
