@@ -143,7 +143,8 @@ def vcr_options(function: F) -> F:
         type=click.IntRange(min=1),
         default=None,
         help="VCR-Net passes per pair: each pass after the first registers the source moved by the "
-        "estimate so far. Default: 2 unpolished, 1 with a polish (+icp, +kiss-icp).",
+        "estimate so far. Default: 1 (2 unpolished for legacy xyz-encoder weights, whose features "
+        "change with the source's position; the invariant encoder's do not).",
     )(function)
     function = click.option(
         "--device",

@@ -118,13 +118,34 @@ def test_a_second_pass_registers_the_source_moved_by_the_first(weights: Path) ->
 
 def test_a_polished_vcr_runs_one_pass_unless_told(weights: Path) -> None:
     from vcr_odom.registration import make_polished_method
-    from vcr_odom.registration.vcr import DEFAULT_PASSES, POLISHED_PASSES
+    from vcr_odom.registration.vcr import POLISHED_PASSES
 
     def passes(polished: bool, **options: object) -> int:
         return make_polished_method("vcr", polished, weights=weights, device="cpu", **options).passes
 
-    assert (passes(False), passes(True)) == (DEFAULT_PASSES, POLISHED_PASSES) == (2, 1)
+    assert SMALL.encoder == "invariant"
+    assert (passes(False), passes(True)) == (1, POLISHED_PASSES) == (1, 1)
     assert passes(True, passes=3) == 3
+
+
+def test_legacy_xyz_weights_run_two_passes_unpolished(tmp_path: Path) -> None:
+    from vcr_odom.registration.vcr import DEFAULT_PASSES
+
+    legacy = SMALL.with_changes(encoder="xyz", distance_bias=False)
+    path = save_weights(tmp_path / "xyz.safetensors", VCRNet(legacy), legacy, {})
+    assert VcrRegistrar(path, "cpu").passes == DEFAULT_PASSES == 2
+
+
+def test_a_second_pass_of_the_invariant_model_changes_nothing(weights: Path) -> None:
+    """Its features of the moved source are the same, so a second pass finds the same correspondences."""
+    from test_invariance import street_like_cloud
+
+    source = street_like_cloud(SMALL.num_points, seed=4)
+    target = (source @ _yaw(0.2).T + np.array([2.0, -0.5, 0.1])).astype(np.float32)
+    one, two = VcrRegistrar(weights, "cpu", passes=1), VcrRegistrar(weights, "cpu", passes=2)
+    first = one.register(one.prepare(source), one.prepare(target)).transform
+    second = two.register(two.prepare(source), two.prepare(target)).transform
+    np.testing.assert_allclose(second, first, atol=5e-3)
 
 
 def _yaw(angle: float) -> np.ndarray:

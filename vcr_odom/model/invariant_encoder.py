@@ -49,21 +49,26 @@ def edge_geometry(xyz: Tensor, index: Tensor) -> Tensor:
 
 
 def local_shape(xyz: Tensor, index: Tensor) -> Tensor:
-    """``(B, N, 5)``: sqrt of the neighbourhood's covariance eigenvalues (largest first) and the |z|
-    components of its normal (smallest eigenvector) and of its principal direction (largest).
+    """``(B, N, 5)``: sqrt of the neighbourhood's covariance eigenvalues s1 >= s2 >= s3, the |z| of its
+    normal (smallest eigenvector) times its planarity (s2 - s3) / s1, and the |z| of its principal
+    direction times its linearity (s1 - s2) / s1.
 
-    Eigenvectors have no sign and tied eigenvalues no direction: only |z| of well-defined axes is
-    used, so the result stays invariant. Computed in float32 without autograd (points carry no
-    gradient)."""
+    Eigenvectors have no sign (hence |z|), and where two eigenvalues tie their vectors are arbitrary:
+    the planarity / linearity factor goes to zero exactly there, so the feature stays continuous and
+    a cloud moved by float rounding keeps it (a bare |z| jumped on round, bushy neighbourhoods).
+    Computed without autograd (points carry no gradient)."""
     with torch.no_grad(), torch.autocast(device_type=xyz.device.type, enabled=False):
         neighbours = gather_neighbours(xyz.float(), index)  # (B, N, k, 3)
         centred = neighbours - neighbours.mean(dim=2, keepdim=True)
         covariance = centred.transpose(-1, -2) @ centred / index.shape[-1]
         work = torch.float32 if xyz.device.type == "mps" else torch.float64
         values, vectors = torch.linalg.eigh(covariance.to(work))  # ascending
-        spread = values.clamp_min(0.0).sqrt().flip(-1) / EDGE_UNIT
-        tilt = vectors[..., 2, :].abs()  # z component of each eigenvector
-        shape = torch.cat([spread, tilt[..., 0:1], tilt[..., 2:3]], dim=-1)
+        spread = values.clamp_min(0.0).sqrt().flip(-1)  # s1 >= s2 >= s3
+        largest = spread[..., 0:1].clamp_min(1e-9)
+        planarity = (spread[..., 1:2] - spread[..., 2:3]) / largest
+        linearity = (spread[..., 0:1] - spread[..., 1:2]) / largest
+        tilt = vectors[..., 2, :].abs()  # z component of each eigenvector, ascending eigenvalues
+        shape = torch.cat([spread / EDGE_UNIT, tilt[..., 0:1] * planarity, tilt[..., 2:3] * linearity], -1)
     return shape.to(xyz.dtype)
 
 

@@ -28,7 +28,8 @@ GPU_BATCH_SIZE = 16
 """Pairs per network call on CUDA (``batch_size=None``); 1 on the CPU."""
 
 DEFAULT_PASSES = 2
-"""Network passes per pair when nothing polishes the estimate. The second pass registers the source
+"""Network passes per pair when nothing polishes the estimate, for weights with the legacy ``xyz``
+encoder (weights with the invariant encoder run one: see :func:`default_passes`). The second pass registers the source
 moved by the first estimate, i.e. a residual of a few decimetres, where the network is most accurate.
 On the paper's protocol (kitti-sample, 512 points; ``benchmarks/pair_tables.py``) translation RMSE
 falls from 0.37 to 0.16 m on frames 0-39 (where two was chosen; a third pass changed it by < 0.01 m
@@ -66,7 +67,7 @@ class VcrRegistrar:
         device: str = "auto",
         seed: int = 0,
         batch_size: int | None = None,
-        passes: int = DEFAULT_PASSES,
+        passes: int | None = None,
     ) -> None:
         path = Path(weights) if weights is not None else default_weights_path("default")
         self.device = resolve_device(device)
@@ -75,10 +76,10 @@ class VcrRegistrar:
         self.batch_size = default_batch if batch_size is None else int(batch_size)
         if self.batch_size < 1:
             raise ConfigError(f"batch_size must be >= 1; got {batch_size!r}")
-        if int(passes) < 1:
+        if passes is not None and int(passes) < 1:
             raise ConfigError(f"passes must be >= 1; got {passes!r}")
-        self.passes = int(passes)
         self.model, self.config, self.metadata = load_weights(path, device=str(self.device))
+        self.passes = default_passes(self.config) if passes is None else int(passes)
         self.model.eval()
         self.weights_path = path
         # Pre-processing as in training: ground removed, exactly N points by farthest point sampling
@@ -143,6 +144,13 @@ class VcrRegistrar:
                 info["status"] = DEGENERATE
             results.append(RegistrationResult(transform.copy(), info=info))
         return results
+
+
+def default_passes(config: VcrConfig) -> int:
+    """One pass for the invariant encoder: the source moved by the first estimate has the same
+    features (to float rounding), hence the same correspondences, and a second pass returns the
+    identity at twice the cost. Two for the legacy ``xyz`` encoder (:data:`DEFAULT_PASSES`)."""
+    return 1 if config.encoder == "invariant" else DEFAULT_PASSES
 
 
 def network_preprocess_config(config: VcrConfig, seed: int = 0) -> PreprocessConfig:
