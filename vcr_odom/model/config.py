@@ -29,6 +29,7 @@ LEGACY_VALUES: dict[str, object] = {
     "encoder": "xyz",
     "input_max_range": 80.0,
     "robust_iterations": 0,
+    "consensus_hypotheses": 0,
     "distance_bias": False,
 }
 """What a weight file that lacks a field was trained with."""
@@ -69,6 +70,10 @@ class VcrConfig:
       (metres). Key points without a counterpart in the other scan get a virtual point somewhere in
       its cloud; with full weight they pull the estimate towards the two clouds' centroids, i.e.
       towards zero motion. 0 = the paper's single unweighted SVD.
+      ``consensus_hypotheses``: where > 0, the re-weighting starts from the best of this many motions
+      fitted to three correspondences each (most support within ``consensus_threshold`` metres)
+      instead of the unweighted SVD, whose start is outside the re-weighting's basin when many
+      virtual points are wrong. Both are inference settings: no gradient flows through them.
     Loss:
       ``gamma``: the paper's γ, the weight of the false-match term of Loss_cor (dimensionless).
       ``match_radius``: None = the paper's true-match test (the GT-aligned virtual point's nearest
@@ -93,6 +98,8 @@ class VcrConfig:
     input_max_range: float = 40.0
     robust_iterations: int = 3
     robust_scale: float = 0.5
+    consensus_hypotheses: int = 256
+    consensus_threshold: float = 1.0
     gamma: float = 1.0
     match_radius: float | None = None
 
@@ -128,7 +135,8 @@ class VcrConfig:
         if self.encoder not in ENCODERS:
             raise ConfigError(f"encoder must be one of {', '.join(ENCODERS)}; got {self.encoder!r}")
         _check_int(self, "robust_iterations", 0)
-        for name in ("input_max_range", "robust_scale"):
+        _check_int(self, "consensus_hypotheses", 0)
+        for name in ("input_max_range", "robust_scale", "consensus_threshold"):
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
                 raise ConfigError(f"{name} must be a finite number > 0; got {value!r}")

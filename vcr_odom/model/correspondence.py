@@ -114,14 +114,45 @@ def weighted_procrustes(
     return rotation, translation
 
 
+def consensus_start(
+    source: Tensor, target: Tensor, weights: Tensor | None, hypotheses: int, threshold: float
+) -> tuple[Tensor, Tensor]:
+    """The rigid motion, among ``hypotheses`` fitted to three correspondences each, that brings the
+    most (weighted) correspondences within ``threshold`` metres: a RANSAC start for the re-weighting.
+
+    Why: where many virtual points are wrong (scans metres apart, repeated structure), the least-squares
+    start of the paper's SVD lies outside the basin of the re-weighting, which then keeps it. The
+    triples are drawn from a fixed-seed generator (deterministic, and the same for a moved cloud, so
+    the estimate stays equivariant); no gradient flows through the choice."""
+    batch, count, _ = source.shape
+    generator = torch.Generator().manual_seed(0)
+    triples = torch.randint(count, (hypotheses, 3), generator=generator).to(source.device)
+    with torch.no_grad():
+        src = source[:, triples].reshape(batch * hypotheses, 3, 3).float()
+        tgt = target[:, triples].reshape(batch * hypotheses, 3, 3).float()
+        rotation, translation = weighted_procrustes(src, tgt)
+        rotation = rotation.view(batch, hypotheses, 3, 3)
+        translation = translation.view(batch, hypotheses, 1, 3)
+        moved = source.float().unsqueeze(1) @ rotation.transpose(-1, -2) + translation
+        residual = (moved - target.float().unsqueeze(1)).norm(dim=-1)  # (B, H, K)
+        support = (1.0 - (residual / threshold) ** 2).clamp_min(0.0)
+        if weights is not None:
+            support = support * weights.float().unsqueeze(1)
+        best = support.sum(-1).argmax(dim=1)
+        pick = torch.arange(batch, device=source.device)
+    return rotation[pick, best].to(source.dtype), translation[pick, best, 0].to(source.dtype)
+
+
 def robust_procrustes(
     source: Tensor,
     target: Tensor,
     weights: Tensor | None = None,
     iterations: int = 0,
     scale: float = 0.5,
+    hypotheses: int = 0,
+    threshold: float = 1.0,
 ) -> tuple[Tensor, Tensor]:
-    """:func:`weighted_procrustes`, then ``iterations`` re-solves with Cauchy weights of each pair's
+    """:func:`weighted_procrustes` (or, with ``hypotheses``, :func:`consensus_start`), then ``iterations`` re-solves with Cauchy weights of each pair's
     residual ``r``: ``w / (1 + (r / c)²)`` with ``c`` halving each round down to ``scale`` (metres).
 
     Why: a key point with no counterpart in the other scan still gets a virtual point, somewhere in
@@ -129,7 +160,10 @@ def robust_procrustes(
     for two scans around their own sensors means towards zero motion. The robust weights are
     detached (iteratively reweighted least squares): the gradient flows through the last solve.
     """
-    rotation, translation = weighted_procrustes(source, target, weights)
+    if hypotheses > 0:
+        rotation, translation = consensus_start(source, target, weights, hypotheses, threshold)
+    else:
+        rotation, translation = weighted_procrustes(source, target, weights)
     base = (
         torch.ones(source.shape[:2], dtype=source.dtype, device=source.device) if weights is None else weights
     )

@@ -96,6 +96,8 @@ class VCRNet(nn.Module):
             svd_weights,
             iterations=self.config.robust_iterations,
             scale=self.config.robust_scale,
+            hypotheses=self.config.consensus_hypotheses,
+            threshold=self.config.consensus_threshold,
         )
         return VcrOutput(
             rotation=rotation,
