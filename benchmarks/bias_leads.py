@@ -8,7 +8,10 @@ gets its own measurement on the same frames, VCR alone, one pass:
 - ``far``: share of the network's N points beyond 40 m with the weights' own input range, and with
   the old 80 m crop;
 - ``range``: the gap sweep with the weights' input range and with the other crop (80 / 40 m);
-- ``robust``: the gap sweep with the paper's single unweighted SVD (0 robust rounds) and with 4.
+- ``pointer``: the gap sweep with the soft pointer's learned temperature and with it divided by 64
+  (each virtual point nearly its best candidate, not a blend drawn towards the target's middle);
+- ``svd``: the gap sweep with the paper's single unweighted SVD, with 5 re-weighting rounds, and with
+  the consensus start before them (each unless it is how the weights run).
 
     .venv/bin/python benchmarks/bias_leads.py --data-root ../shared/data/kitti-sample --seq 00 \\
         --frames 40:60 --weights weights/vcr-default.safetensors --gap 1 --gap 5 --gap 10
@@ -32,6 +35,14 @@ SHIFTS = (
     ("shift 20 m", (14.0, 14.0, 0.5), 0.0),
     ("yaw 30°", (0.0,) * 3, 30.0),
 )
+
+
+SVD_VARIANTS = (
+    ("paper's SVD", 0, 0),
+    ("5 re-weighting rounds", 5, 0),
+    ("consensus start + 5 rounds", 5, 256),
+)
+"""The pose head's variants: (label, robust_iterations, consensus_hypotheses)."""
 
 
 def vcr_variant(path: Path, label: str, **overrides: Any) -> Any:
@@ -112,12 +123,15 @@ def main() -> None:
             f"{own.config.input_max_range:g} m crop, {100 * far_share(own, raw, 80.0):.1f} % with 80 m\n"
         )
         other_range = 40.0 if own.config.input_max_range > 40.0 else 80.0
-        other_robust = 0 if own.config.robust_iterations else 4
-        variants = [
-            own,
-            vcr_variant(path, f"{other_range:g} m crop", input_max_range=other_range),
-            vcr_variant(path, f"{other_robust} robust rounds", robust_iterations=other_robust),
-        ]
+        variants = [own, vcr_variant(path, f"{other_range:g} m crop", input_max_range=other_range)]
+        other_sharpening = 1.0 if own.config.inference_sharpening != 1.0 else 64.0
+        label = "soft pointer" if other_sharpening == 1.0 else "pointer sharpened x64"
+        variants.append(vcr_variant(path, label, inference_sharpening=other_sharpening))
+        for label, robust, consensus in SVD_VARIANTS:
+            if (robust, consensus) != (own.config.robust_iterations, own.config.consensus_hypotheses):
+                variants.append(
+                    vcr_variant(path, label, robust_iterations=robust, consensus_hypotheses=consensus)
+                )
         print(markdown_table(run_gap_sweep(sequence, selection, variants, gaps)))
 
 

@@ -6,7 +6,7 @@ one and with two network passes:
 
     .venv/bin/python benchmarks/pair_tables.py --data-root ../shared/data/kitti-sample --seq 00 \\
         --frames 40:60 --weights weights/vcr-default.safetensors \\
-        --weights weights/vcr-default-same-scan.safetensors
+        --weights weights/legacy/vcr-default-xyz.safetensors
 
 prints one markdown table per pair kind (same-scan, consecutive).
 """

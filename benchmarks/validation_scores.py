@@ -4,7 +4,7 @@ Not a test. The same split as training (`train_val_datasets`: a contiguous 20 % 
 transforms drawn with a fixed seed so that every file sees the same pairs:
 
     .venv/bin/python benchmarks/validation_scores.py --cache kitti_0_40.npz --cache synth_21.npz ... \\
-        weights/vcr-default.safetensors weights/vcr-default-same-scan.safetensors
+        weights/vcr-default.safetensors weights/legacy/vcr-default-xyz.safetensors
 """
 
 from __future__ import annotations

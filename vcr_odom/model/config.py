@@ -30,6 +30,7 @@ LEGACY_VALUES: dict[str, object] = {
     "input_max_range": 80.0,
     "robust_iterations": 0,
     "consensus_hypotheses": 0,
+    "inference_sharpening": 1.0,
     "distance_bias": False,
 }
 """What a weight file that lacks a field was trained with."""
@@ -74,6 +75,10 @@ class VcrConfig:
       fitted to three correspondences each (most support within ``consensus_threshold`` metres)
       instead of the unweighted SVD, whose start is outside the re-weighting's basin when many
       virtual points are wrong. Both are inference settings: no gradient flows through them.
+      ``inference_sharpening``: outside training the soft pointer's temperature is divided by this, so
+      each virtual point is (nearly) its best candidate instead of a blend of J candidates. A blend
+      is drawn towards the middle of the candidates, i.e. towards the target cloud, around its own
+      sensor: towards zero motion. Training keeps the learned temperature (its gradient needs the blend).
     Loss:
       ``gamma``: the paper's γ, the weight of the false-match term of Loss_cor (dimensionless).
       ``match_radius``: None = the paper's true-match test (the GT-aligned virtual point's nearest
@@ -96,10 +101,11 @@ class VcrConfig:
     encoder: str = "invariant"
     distance_bias: bool = True
     input_max_range: float = 40.0
-    robust_iterations: int = 3
-    robust_scale: float = 0.5
+    robust_iterations: int = 5
+    robust_scale: float = 0.125
     consensus_hypotheses: int = 256
     consensus_threshold: float = 1.0
+    inference_sharpening: float = 64.0
     gamma: float = 1.0
     match_radius: float | None = None
 
@@ -136,7 +142,7 @@ class VcrConfig:
             raise ConfigError(f"encoder must be one of {', '.join(ENCODERS)}; got {self.encoder!r}")
         _check_int(self, "robust_iterations", 0)
         _check_int(self, "consensus_hypotheses", 0)
-        for name in ("input_max_range", "robust_scale", "consensus_threshold"):
+        for name in ("input_max_range", "robust_scale", "consensus_threshold", "inference_sharpening"):
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
                 raise ConfigError(f"{name} must be a finite number > 0; got {value!r}")

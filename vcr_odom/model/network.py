@@ -79,6 +79,8 @@ class VCRNet(nn.Module):
         psi_target, w_target = self.self_attention(target_features, target_points)
         phi_source, phi_target = self.cross_attention(psi_source, psi_target)
         temperature = self.temperature
+        if not self.training:
+            temperature = temperature / self.config.inference_sharpening
         affinity = feature_affinity(phi_source, phi_target, temperature)
         vcp = virtual_correspondences(
             source_points,
