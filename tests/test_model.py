@@ -146,7 +146,9 @@ def test_outputs_invariant_to_point_order() -> None:
         out = model(source, target)
         perm_s, perm_t = torch.randperm(config.num_points), torch.randperm(config.num_points)
         permuted = model(source[:, perm_s], target[:, perm_t])
-    torch.testing.assert_close(permuted.transform, out.transform, atol=1e-3, rtol=0)  # re-weighting to 0.125 m
+    torch.testing.assert_close(
+        permuted.transform, out.transform, atol=1e-3, rtol=0
+    )  # re-weighting to 0.125 m
     for b in range(2):  # the same key points were chosen (as a set)
         same = torch.sort(perm_s[permuted.key_indices[b]]).values
         assert torch.equal(same, torch.sort(out.key_indices[b]).values)
