@@ -215,3 +215,15 @@ def test_pose_errors_resolve_small_angles() -> None:
         _rotation(math.radians(170)).unsqueeze(0), torch.zeros(1, 3), torch.eye(3)[None], torch.zeros(1, 3)
     )
     assert big.item() == pytest.approx(170, rel=1e-5)
+
+
+def test_time_limit_stops_before_an_epoch_that_would_overrun(tmp_path: Path) -> None:
+    """A lent GPU's minutes: no epoch starts once the mean epoch would end past the limit; the
+    epochs done keep their checkpoint and best weights. Without a limit every epoch runs."""
+    data = RandomPairs(2)
+    limited = train(TINY, data, data, _config(tmp_path / "limited", epochs=4, time_limit_s=1e-6))
+    assert len(limited.history) == 1 and limited.best_path.is_file()
+    full = train(TINY, data, data, _config(tmp_path / "full", epochs=2))
+    assert len(full.history) == 2
+    with pytest.raises(ConfigError, match="time_limit_s"):
+        _config(tmp_path, time_limit_s=0.0)

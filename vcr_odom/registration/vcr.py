@@ -29,8 +29,8 @@ GPU_BATCH_SIZE = 16
 
 DEFAULT_PASSES = 2
 """Network passes per pair when nothing polishes the estimate, for weights with the legacy ``xyz``
-encoder (weights with the invariant encoder run one: see :func:`default_passes`). The second pass registers the source
-moved by the first estimate, i.e. a residual of a few decimetres, where the network is most accurate.
+encoder (weights with the invariant encoder run one: see :func:`default_passes`). The second pass
+registers the source moved by the first estimate, i.e. a residual of a few decimetres, where the network is most accurate.
 On the paper's protocol (kitti-sample, 512 points; ``benchmarks/pair_tables.py``) translation RMSE
 falls from 0.37 to 0.16 m on frames 0-39 (where two was chosen; a third pass changed it by < 0.01 m
 in a one-off check) and from 0.31 to 0.11 m on the test frames 40-59, every pair then within
