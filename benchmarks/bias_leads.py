@@ -110,7 +110,8 @@ def main() -> None:
         own = vcr_variant(path, "as trained")
         print(
             f"\n## {path.name}: encoder {own.config.encoder}, input range {own.config.input_max_range:g} m, "
-            f"{own.config.robust_iterations} robust rounds\n"
+            f"{own.config.robust_iterations} robust rounds, {own.config.consensus_hypotheses} consensus "
+            f"hypotheses, pointer sharpened x{own.config.inference_sharpening:g}\n"
         )
         print("| feature change | " + " | ".join(label for label, _, _ in SHIFTS) + " |")
         print("|---|" + "---|" * len(SHIFTS))

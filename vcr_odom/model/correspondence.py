@@ -152,8 +152,9 @@ def robust_procrustes(
     hypotheses: int = 0,
     threshold: float = 1.0,
 ) -> tuple[Tensor, Tensor]:
-    """:func:`weighted_procrustes` (or, with ``hypotheses``, :func:`consensus_start`), then ``iterations`` re-solves with Cauchy weights of each pair's
-    residual ``r``: ``w / (1 + (r / c)²)`` with ``c`` halving each round down to ``scale`` (metres).
+    """:func:`weighted_procrustes` (or, with ``hypotheses``, :func:`consensus_start`), then
+    ``iterations`` re-solves with Cauchy weights of each pair's residual ``r``: ``w / (1 + (r / c)²)``
+    with ``c`` halving each round down to ``scale`` (metres).
 
     Why: a key point with no counterpart in the other scan still gets a virtual point, somewhere in
     that cloud; at full weight such points pull the estimate towards the centroids' difference, which
