@@ -47,8 +47,8 @@ SVD_VARIANTS = (
 
 def vcr_variant(path: Path, label: str, **overrides: Any) -> Any:
     """A VCR registrar (one pass) whose inference-time settings are overridden (not its weights)."""
+    from vcr_odom.preprocess import network_preprocess_config
     from vcr_odom.registration import make_method
-    from vcr_odom.registration.vcr import network_preprocess_config
 
     method = make_method("vcr", weights=path, device="cpu", passes=1)
     config = replace(method.config, **overrides)
@@ -80,8 +80,7 @@ def feature_shift(method: Any, frames: list[np.ndarray]) -> dict[str, float]:
 
 def far_share(method: Any, frames: list[np.ndarray], max_range: float) -> float:
     """Share of the network's points farther than 40 m from the sensor with an input crop of ``max_range``."""
-    from vcr_odom.preprocess import preprocess
-    from vcr_odom.registration.vcr import network_preprocess_config
+    from vcr_odom.preprocess import network_preprocess_config, preprocess
 
     config = network_preprocess_config(replace(method.config, input_max_range=max_range))
     shares = [float((np.linalg.norm(preprocess(f, config)[:, :3], axis=1) > 40.0).mean()) for f in frames]

@@ -19,7 +19,7 @@ from vcr_odom.data import open_sequence
 from vcr_odom.data.pairs import FrameCache, PairConfig, build_frame_cache, train_val_datasets
 from vcr_odom.model.config import VcrConfig
 from vcr_odom.odometry import select_frames
-from vcr_odom.registration.vcr import network_preprocess_config
+from vcr_odom.preprocess import network_preprocess_config
 from vcr_odom.train import DEVICES, ProgressEvent, TrainConfig, pretrain, train
 
 F = Callable[..., Any]

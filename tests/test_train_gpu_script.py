@@ -15,7 +15,7 @@ from vcr_odom.data.pairs import PairConfig, build_frame_cache
 from vcr_odom.data.synth import SynthSequence
 from vcr_odom.model.config import VcrConfig
 from vcr_odom.model.weights import load_weights
-from vcr_odom.registration.vcr import network_preprocess_config
+from vcr_odom.preprocess import network_preprocess_config
 
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "scripts" / "train_gpu.sh"

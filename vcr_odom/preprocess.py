@@ -10,12 +10,16 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import open3d as o3d
 from numpy.typing import NDArray
 
 from vcr_odom.errors import ConfigError, DataWarning
+
+if TYPE_CHECKING:
+    from vcr_odom.model.config import VcrConfig
 
 DOWNSAMPLE_METHODS = ("fps", "random", "voxel")
 """``fps``: farthest point sampling (even coverage, the paper's choice for N points); ``random``:
@@ -321,3 +325,10 @@ def _select_columns(sampled: NDArray[np.float32], config: PreprocessConfig) -> N
     if sampled.shape[1] >= 4:
         return np.ascontiguousarray(sampled[:, :4])
     return np.column_stack([sampled[:, :3], np.zeros(len(sampled), dtype=np.float32)])
+
+
+def network_preprocess_config(config: VcrConfig, seed: int = 0) -> PreprocessConfig:
+    """What the network with ``config`` is fed, in training caches and at inference alike."""
+    return PreprocessConfig(
+        n_points=config.num_points, max_range=config.input_max_range, method="fps", seed=seed
+    )

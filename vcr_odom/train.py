@@ -18,10 +18,11 @@ from __future__ import annotations
 
 from torch.utils.data import Dataset
 
+from vcr_odom.device import resolve_device
 from vcr_odom.model.config import VcrConfig
 from vcr_odom.training.config import DEVICES, Progress, ProgressEvent, TrainConfig, TrainResult
 from vcr_odom.training.loop import fit
-from vcr_odom.training.runtime import resolve_device, seed_everything
+from vcr_odom.training.runtime import seed_everything
 from vcr_odom.training.tasks import Pretraining, Registration
 
 __all__ = [

@@ -16,13 +16,13 @@ import torch
 from numpy.typing import NDArray
 
 from vcr_odom.data.base import Points
+from vcr_odom.device import resolve_device
 from vcr_odom.errors import ConfigError
 from vcr_odom.geometry import Transform, project_to_se3
 from vcr_odom.model.config import VcrConfig
 from vcr_odom.model.weights import default_weights_path, load_weights
-from vcr_odom.preprocess import PreprocessConfig, preprocess
+from vcr_odom.preprocess import network_preprocess_config, preprocess
 from vcr_odom.registration.base import DEGENERATE, RegistrationResult
-from vcr_odom.training.runtime import resolve_device
 
 GPU_BATCH_SIZE = 16
 """Pairs per network call on CUDA (``batch_size=None``); 1 on the CPU."""
@@ -151,13 +151,6 @@ def default_passes(config: VcrConfig) -> int:
     features (to float rounding), hence the same correspondences, and a second pass returns the
     identity at twice the cost. Two for the legacy ``xyz`` encoder (:data:`DEFAULT_PASSES`)."""
     return 1 if config.encoder == "invariant" else DEFAULT_PASSES
-
-
-def network_preprocess_config(config: VcrConfig, seed: int = 0) -> PreprocessConfig:
-    """What the network with ``config`` is fed, in training caches and at inference alike."""
-    return PreprocessConfig(
-        n_points=config.num_points, max_range=config.input_max_range, method="fps", seed=seed
-    )
 
 
 def _project_finite(transform: torch.Tensor) -> NDArray[np.float64]:

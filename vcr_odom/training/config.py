@@ -8,10 +8,9 @@ from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
+from vcr_odom.device import DEVICES
 from vcr_odom.errors import ConfigError
 from vcr_odom.model.network import VCRNet
-
-DEVICES = ("auto", "cpu", "cuda")
 
 
 @dataclass

@@ -15,21 +15,7 @@ import torch
 import torch.distributed as dist
 from torch import nn
 
-from vcr_odom.errors import ConfigError
-from vcr_odom.training.config import DEVICES
-
-
-def resolve_device(name: str, local_rank: int = 0) -> torch.device:
-    """``auto`` picks CUDA when available; ``cuda`` without CUDA is a ConfigError."""
-    if name not in DEVICES:
-        raise ConfigError(f"device must be one of {', '.join(DEVICES)}; got {name!r}")
-    if name == "cuda" or (name == "auto" and torch.cuda.is_available()):
-        if not torch.cuda.is_available():
-            raise ConfigError(
-                "--device cuda was requested but CUDA is not available (use --device cpu or auto)"
-            )
-        return torch.device("cuda", local_rank)
-    return torch.device("cpu")
+from vcr_odom.device import resolve_device
 
 
 def seed_everything(seed: int) -> None:
