@@ -1,4 +1,4 @@
-"""Evaluation metrics: devkit drift against kiss-icp's port, hand-computed cases, evo ATE/RPE."""
+"""Evaluation metrics: devkit drift against kiss-icp's port, hand-computed cases, evo ATE/RPE against numpy."""
 
 from __future__ import annotations
 
@@ -8,16 +8,17 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from reference_geometry import weighted_kabsch
+from reference_metrics import KISS_ICP_PI, kiss_icp_equivalent
 
 from vcr_odom.errors import ConfigError, DataError
 from vcr_odom.geometry import make_transform, rotation_from_euler_zyx
 from vcr_odom.io import read_kitti_poses
 from vcr_odom.metrics import (
-    KISS_ICP_PI,
+    DriftResult,
     ate_rpe,
     endpoint_drift,
     evaluate,
-    kiss_icp_equivalent,
     kitti_drift,
     pair_errors,
     relative_motions,
@@ -65,15 +66,36 @@ def perturbed(gt: np.ndarray, seed: int) -> np.ndarray:
     return compose(motions @ np.array(noise))
 
 
+def smooth_drive(num_poses: int = 900) -> np.ndarray:
+    """About 1 m a frame along a path of gentle S-bends, with slow pitch and roll: ~900 m in all,
+    long enough for every KITTI segment length (100..800 m)."""
+    i = np.arange(num_poses - 1)
+    yaw = 0.03 * np.sin(2 * np.pi * i / 250)
+    pitch = 0.002 * np.sin(2 * np.pi * i / 170)
+    roll = 0.002 * np.cos(2 * np.pi * i / 130)
+    step = 1.0 + 0.2 * np.sin(2 * np.pi * i / 90)
+    motions = [
+        make_transform(rotation_from_euler_zyx(yaw[k], pitch[k], roll[k]), [step[k], 0.0, 0.0])
+        for k in range(num_poses - 1)
+    ]
+    return compose(np.array(motions))
+
+
+def biased(gt: np.ndarray, yaw_per_frame_rad: float, scale: float) -> np.ndarray:
+    """The same drive with every motion over-scaled and turned a little too far left: systematic drift."""
+    motions = np.linalg.solve(gt[:-1], gt[1:])
+    motions[:, :3, 3] *= scale
+    error = make_transform(rotation_from_euler_zyx(yaw_per_frame_rad, 0.0, 0.0), [0.0, 0.0, 0.0])
+    return compose(motions @ error)
+
+
 # ------------------------------------------------------------------------------------------ KITTI drift
 
 
-@pytest.mark.parametrize(("sequence", "seed"), [("00", 0), ("04", 1), ("07", 2), ("10", 3)])
-def test_drift_agrees_with_kiss_icp(kitti_gt_poses_dir: Path, sequence: str, seed: int) -> None:
+def assert_agrees_with_kiss_icp(est: np.ndarray, gt: np.ndarray) -> DriftResult:
+    """Our devkit drift against kiss-icp's C++ port of the same devkit, an independent implementation."""
     from kiss_icp.metrics import sequence_error
 
-    gt = read_kitti_poses(kitti_gt_poses_dir / "poses" / f"{sequence}.txt")
-    est = perturbed(gt, seed)
     drift = kitti_drift(est, gt)
     kiss_t_percent, kiss_r_deg_per_m = sequence_error(gt, est)
 
@@ -92,6 +114,22 @@ def test_drift_agrees_with_kiss_icp(kitti_gt_poses_dir: Path, sequence: str, see
     used = counts > 0
     assert counts.sum() == drift.num_segments
     assert drift.t_rel_percent == pytest.approx(np.sum(counts[used] * t_rows[used]) / counts.sum())
+    return drift
+
+
+@pytest.mark.parametrize("perturbation", ["random walk", "scale and yaw bias"])
+def test_drift_agrees_with_kiss_icp_on_a_synthetic_drive(perturbation: str) -> None:
+    gt = smooth_drive()
+    est = perturbed(gt, seed=4) if perturbation == "random walk" else biased(gt, 2e-4, 1.01)
+    drift = assert_agrees_with_kiss_icp(est, gt)
+    assert drift.segment_lengths_m == (100.0, 200.0, 300.0, 400.0, 500.0, 600.0, 700.0, 800.0)
+    assert all(row.num_segments > 0 for row in drift.per_length)  # the path is long enough for 800 m
+
+
+@pytest.mark.parametrize(("sequence", "seed"), [("00", 0), ("04", 1), ("07", 2), ("10", 3)])
+def test_drift_agrees_with_kiss_icp_on_kitti(kitti_gt_poses_dir: Path, sequence: str, seed: int) -> None:
+    gt = read_kitti_poses(kitti_gt_poses_dir / "poses" / f"{sequence}.txt")
+    assert_agrees_with_kiss_icp(perturbed(gt, seed), gt)
 
 
 def test_sequence_00_is_kitti_length(kitti_gt_poses_dir: Path) -> None:
@@ -132,10 +170,12 @@ def test_constant_yaw_bias_drift() -> None:
     bias_rad = math.radians(0.01)  # 0.01 deg a metre = 1 deg / 100 m
     step = make_transform(np.eye(3), [1.0 + 1e-9, 0.0, 0.0])
     gt = compose(np.repeat(step[None], 400, axis=0))
-    biased = make_transform(rotation_from_euler_zyx(bias_rad, 0.0, 0.0), [1.0 + 1e-9, 0.0, 0.0])
-    est = compose(np.repeat(biased[None], 400, axis=0))
+    turning = make_transform(rotation_from_euler_zyx(bias_rad, 0.0, 0.0), [1.0 + 1e-9, 0.0, 0.0])
+    est = compose(np.repeat(turning[None], 400, axis=0))
     drift = kitti_drift(est, gt)
-    assert drift.num_segments > 0
+    # Steps a hair over 1 m: a segment of L m from frame s ends at frame s + L, which must exist (<= 400).
+    expected = [len(range(0, 401 - int(length), 10)) for length in drift.segment_lengths_m]
+    assert [row.num_segments for row in drift.per_length] == expected == [31, 21, 11, 1, 0, 0, 0, 0]
     for row in drift.per_length:
         if row.num_segments:
             assert row.r_rel_deg_per_100m == pytest.approx(1.0, rel=1e-6)
@@ -174,9 +214,11 @@ def test_short_sequence_gets_labelled_short_segments_and_endpoint_drift() -> Non
     assert drift.short_sequence
     assert "short sequence" in drift.label and "not comparable" in drift.label
     assert drift.segment_lengths_m == (5, 10, 15, 20, 25, 30, 35, 40)
-    assert drift.num_segments > 0
+    # Exactly 1 m steps: a segment of L m from frame s ends at frame s + L + 1, which must exist (<= 50).
+    expected = [len(range(0, 50 - int(length), 10)) for length in drift.segment_lengths_m]
+    assert [row.num_segments for row in drift.per_length] == expected
+    assert drift.num_segments == sum(expected) == 24
     for row in drift.per_length:
-        assert row.num_segments > 0
         assert row.t_rel_percent == pytest.approx(1.0 * (row.length_m + 1) / row.length_m)
     end = report.endpoint
     assert end.path_length_m == pytest.approx(50.0)
@@ -364,8 +406,13 @@ def test_ate_rpe_lateral_offset_by_hand() -> None:
     assert result.rpe_trans_rmse_m == pytest.approx(math.sqrt(1.0 / (count - 1)))
     assert result.rpe_rot_rmse_deg == pytest.approx(0.0, abs=1e-6)
     assert ate_rpe(est, gt, alignment="none").ate_trans_rmse_m == pytest.approx(result.ate_trans_rmse_m)
-    # Umeyama may shift the estimate to share the error with frame 0: never worse than no alignment.
-    assert ate_rpe(est, gt, alignment="se3").ate_trans_rmse_m < result.ate_trans_rmse_m
+    # Umeyama without scale is the least-squares rigid fit of the positions (scipy's, here).
+    fit = weighted_kabsch(est[:, :3, 3], gt[:, :3, 3])
+    aligned = est[:, :3, 3] @ fit[:3, :3].T + fit[:3, 3]
+    expected = math.sqrt(np.mean(np.sum((aligned - gt[:, :3, 3]) ** 2, axis=1)))
+    se3 = ate_rpe(est, gt, alignment="se3").ate_trans_rmse_m
+    assert se3 == pytest.approx(expected, rel=1e-6)
+    assert se3 < result.ate_trans_rmse_m
 
 
 def test_ate_alignment_modes() -> None:
@@ -374,7 +421,10 @@ def test_ate_alignment_modes() -> None:
     est = world[None] @ gt  # the same trajectory in another world frame
     assert ate_rpe(est, gt, alignment="origin").ate_trans_rmse_m == pytest.approx(0.0, abs=1e-6)
     assert ate_rpe(est, gt, alignment="se3").ate_trans_rmse_m == pytest.approx(0.0, abs=1e-6)
-    assert ate_rpe(est, gt, alignment="none").ate_trans_rmse_m > 1.0
+    offsets = est[:, :3, 3] - gt[:, :3, 3]
+    assert ate_rpe(est, gt, alignment="none").ate_trans_rmse_m == pytest.approx(
+        math.sqrt(np.mean(np.sum(offsets**2, axis=1)))
+    )
     # RPE is independent of the world frame.
     assert ate_rpe(est, gt, alignment="none").rpe_trans_rmse_m == pytest.approx(0.0, abs=1e-6)
 
@@ -416,6 +466,8 @@ def test_mismatched_lengths_name_both() -> None:
         (np.zeros((3, 3, 3)), np.zeros((3, 3, 3)), r"\(M, 4, 4\)"),
         (np.full((3, 4, 4), np.nan), straight_line(3), "NaN or inf"),
         (straight_line(3), np.where(straight_line(3) == 1.0, np.inf, straight_line(3)), "NaN or inf"),
+        (straight_line(3) @ np.diag([1.0, 1.0, -1.0, 1.0]), straight_line(3), "not a rotation"),
+        (straight_line(3), straight_line(3) @ np.diag([2.0, 2.0, 2.0, 1.0]), "not a rotation"),
     ],
 )
 def test_bad_input_is_a_data_error(est: np.ndarray, gt: np.ndarray, pattern: str) -> None:

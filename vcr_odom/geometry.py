@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
 
 Transform = NDArray[np.float64]
 
@@ -44,51 +45,31 @@ def transform_points(transform: ArrayLike, points: ArrayLike) -> NDArray[np.floa
 
 
 def rotation_angle(rotation: ArrayLike) -> NDArray[np.float64] | float:
-    """Geodesic angle (radians) of rotation matrices ``(..., 3, 3)`` or transforms ``(..., 4, 4)``."""
+    """Geodesic angle (radians, in [0, pi]) of rotation matrices ``(..., 3, 3)`` or transforms ``(..., 4, 4)``.
+
+    scipy goes through the quaternion, which stays accurate near 0 and 180 degrees where
+    ``arccos((trace - 1) / 2)`` loses half its digits.
+    """
     matrix = np.asarray(rotation, dtype=np.float64)[..., :3, :3]
-    cos = (np.trace(matrix, axis1=-2, axis2=-1) - 1.0) / 2.0
-    angle = np.arccos(np.clip(cos, -1.0, 1.0))
+    angle = Rotation.from_matrix(matrix).magnitude()
     return float(angle) if np.ndim(angle) == 0 else angle
 
 
 def rotation_from_euler_zyx(yaw: float, pitch: float, roll: float) -> NDArray[np.float64]:
-    """``Rz(yaw) @ Ry(pitch) @ Rx(roll)``, radians (the intrinsic z-y-x convention)."""
-    cz, sz = np.cos(yaw), np.sin(yaw)
-    cy, sy = np.cos(pitch), np.sin(pitch)
-    cx, sx = np.cos(roll), np.sin(roll)
-    rz = np.array([[cz, -sz, 0.0], [sz, cz, 0.0], [0.0, 0.0, 1.0]])
-    ry = np.array([[cy, 0.0, sy], [0.0, 1.0, 0.0], [-sy, 0.0, cy]])
-    rx = np.array([[1.0, 0.0, 0.0], [0.0, cx, -sx], [0.0, sx, cx]])
-    return rz @ ry @ rx
+    """``Rz(yaw) @ Ry(pitch) @ Rx(roll)``, radians: intrinsic Z-Y-X (scipy's ``"ZYX"``), the vehicle
+    convention (turn, then nose up/down, then bank)."""
+    return Rotation.from_euler("ZYX", [yaw, pitch, roll]).as_matrix()
 
 
 def euler_zyx(rotation: ArrayLike) -> NDArray[np.float64]:
     """Inverse of :func:`rotation_from_euler_zyx`: ``(..., 3)`` array of (yaw, pitch, roll) in radians.
 
-    This is scipy's ``as_euler('zyx')``, the convention of the paper's (DCP-style) tables.
+    scipy's ``as_euler("ZYX")`` (intrinsic; lower-case ``"zyx"`` would be the extrinsic convention,
+    a different triple), the convention of the paper's (DCP-style) tables. Yaw and roll lie in
+    [-pi, pi], pitch in [-pi/2, pi/2]; at pitch = +-pi/2 (gimbal lock) scipy warns and sets roll to 0.
     """
     matrix = np.asarray(rotation, dtype=np.float64)[..., :3, :3]
-    yaw = np.arctan2(matrix[..., 1, 0], matrix[..., 0, 0])
-    pitch = np.arcsin(np.clip(-matrix[..., 2, 0], -1.0, 1.0))
-    roll = np.arctan2(matrix[..., 2, 1], matrix[..., 2, 2])
-    return np.stack([yaw, pitch, roll], axis=-1)
-
-
-def weighted_kabsch(source: ArrayLike, target: ArrayLike, weights: ArrayLike | None = None) -> Transform:
-    """Least-squares rigid transform mapping ``source`` onto ``target`` (reflection-safe)."""
-    src = np.asarray(source, dtype=np.float64)[:, :3]
-    tgt = np.asarray(target, dtype=np.float64)[:, :3]
-    w = np.ones(len(src)) if weights is None else np.asarray(weights, dtype=np.float64)
-    if src.shape != tgt.shape or len(w) != len(src) or len(src) < 3:
-        raise ValueError("weighted_kabsch needs matching (N>=3, 3) point sets and N weights")
-    w = w / w.sum()
-    src_mean = w @ src
-    tgt_mean = w @ tgt
-    covariance = (src - src_mean).T @ ((tgt - tgt_mean) * w[:, None])
-    u, _, vt = np.linalg.svd(covariance)
-    fix = np.diag([1.0, 1.0, np.sign(np.linalg.det(vt.T @ u.T))])
-    rotation = vt.T @ fix @ u.T
-    return make_transform(rotation, tgt_mean - rotation @ src_mean)
+    return Rotation.from_matrix(matrix).as_euler("ZYX")
 
 
 def lidar_to_camera_poses(poses_lidar: ArrayLike, tr_velo_to_cam: ArrayLike) -> Transform:
@@ -98,7 +79,8 @@ def lidar_to_camera_poses(poses_lidar: ArrayLike, tr_velo_to_cam: ArrayLike) -> 
 
 
 def camera_to_lidar_poses(poses_camera: ArrayLike, tr_velo_to_cam: ArrayLike) -> Transform:
-    """``T_lidar = inv(Tr) @ T_cam @ Tr`` (DESIGN: internal trajectories are in the LiDAR frame)."""
+    """``T_lidar = inv(Tr) @ T_cam @ Tr``: every trajectory inside the library is in the LiDAR frame,
+    so KITTI's camera-frame files are converted once, where they are read."""
     tr = np.asarray(tr_velo_to_cam, dtype=np.float64)
     return invert(tr) @ np.asarray(poses_camera, dtype=np.float64) @ tr
 
@@ -112,9 +94,9 @@ def normalise_to_first(poses: ArrayLike) -> Transform:
 def project_to_se3(poses: ArrayLike) -> Transform:
     """Nearest proper rotations (SVD) for ``(..., 4, 4)`` poses, bottom row reset.
 
-    KITTI pose files are printed to 7 digits, so their rotations are orthonormal only to ~2e-7; left
-    as they are, the transpose-inverse of :func:`invert` shows up to 0.04 deg of false rotation, and
-    evo rejects them as invalid SO(3).
+    KITTI pose files are printed to 7 significant digits, so their rotation blocks are only nearly
+    orthonormal; left as they are, the transpose-inverse of :func:`invert` turns that into false
+    rotation between a pose and itself, and evo rejects them as invalid SO(3).
     """
     poses = np.array(poses, dtype=np.float64)
     u, _, vt = np.linalg.svd(poses[..., :3, :3])

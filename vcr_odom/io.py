@@ -39,14 +39,16 @@ def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> Path:
 
 
 def atomic_write_text(path: str | os.PathLike[str], text: str) -> Path:
+    """:func:`atomic_write_bytes` for text (UTF-8)."""
     return atomic_write_bytes(path, text.encode())
 
 
 def read_kitti_poses(path: str | os.PathLike[str]) -> NDArray[np.float64]:
     """Read a KITTI pose file (12 numbers a line, row-major 3x4) into ``(M, 4, 4)``.
 
-    Rotations are projected onto SO(3): the files' 7 printed digits otherwise leave up to 0.04 deg of
-    false rotation in relative poses (see :func:`vcr_odom.geometry.project_to_se3`).
+    Rotations are projected onto SO(3): the files' 7 printed digits otherwise show up as false
+    rotation in relative poses (see :func:`vcr_odom.geometry.project_to_se3`). A block too far from a
+    rotation for printing to explain is refused rather than projected.
     """
     path = Path(path)
     if not path.is_file():
@@ -83,6 +85,7 @@ def format_kitti_poses(poses: ArrayLike) -> str:
 
 
 def write_kitti_poses(path: str | os.PathLike[str], poses: ArrayLike) -> Path:
+    """Write :func:`format_kitti_poses` atomically."""
     return atomic_write_text(path, format_kitti_poses(poses))
 
 
@@ -133,6 +136,7 @@ def read_times(path: str | os.PathLike[str]) -> NDArray[np.float64]:
 
 
 def write_times(path: str | os.PathLike[str], times: ArrayLike) -> Path:
+    """Write a KITTI ``times.txt`` (one timestamp in seconds a line) atomically."""
     return atomic_write_text(path, "".join(f"{t:.6e}\n" for t in np.asarray(times, dtype=np.float64)))
 
 
@@ -149,4 +153,5 @@ def format_tum_trajectory(poses: ArrayLike, timestamps: ArrayLike) -> str:
 
 
 def write_tum_trajectory(path: str | os.PathLike[str], poses: ArrayLike, timestamps: ArrayLike) -> Path:
+    """Write :func:`format_tum_trajectory` atomically."""
     return atomic_write_text(path, format_tum_trajectory(poses, timestamps))

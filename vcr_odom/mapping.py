@@ -2,11 +2,12 @@
 with the number of frames.
 
 Each scan is cropped to ``max_range`` (far points are sparse and noisy), moved into the frame-0 world
-with its pose (``pose[t]`` maps frame-t points into the world, see DESIGN.md), voxel-down-sampled, and
-queued. When the queue holds as many points as the map, queue and map are merged and down-sampled
-again, so every voxel holds one point (the mean of what fell in it) and the work stays amortised
-linear. open3d's tensor ``voxel_down_sample`` bins on a grid anchored at the origin (``floor(p / v)``),
-so the same place always lands in the same voxel however the map's bounds grow.
+with its pose (``pose[t]`` maps frame-t LiDAR points into the world, as every trajectory in the
+library does), voxel-down-sampled, and queued. When the queue holds as many points as the map,
+queue and map are merged and down-sampled again, so every voxel holds one point (the mean of what
+fell in it) and the work stays amortised linear. open3d's tensor ``voxel_down_sample`` bins on a
+grid anchored at the origin (``floor(p / v)``), so the same place always lands in the same voxel
+however the map's bounds grow.
 
 Reflectance rides along as a per-point intensity (averaged per voxel) and is written as a grey colour.
 """

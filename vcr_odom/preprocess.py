@@ -38,29 +38,30 @@ class PreprocessConfig:
       curbs, range noise of a few cm, slight slope over 80 m), so 0.2-0.3 m takes the road and little
       else; larger thresholds start eating car wheels, curbs and pole feet;
       ``ground_ransac_n=3``: three points define a plane (minimal sample, best RANSAC odds);
-      ``ground_num_iterations=100``: the ground is ~50-60 % of a KITTI scan, so a clean 3-point sample
-      has odds ~0.12-0.2 and 100 tries miss it with probability < 2e-6, and the least-squares refit
-      below corrects a near miss; against 200 tries, on 30 kitti-sample frames the plane moved by
-      < 0.1° and < 3 mm and 0.2 % of points at most changed side, for ~6 ms less per frame;
+      ``ground_num_iterations=100``: the ground is about half of a street scan, so a clean 3-point
+      sample has odds of roughly 1 in 8 and 100 tries all miss it with probability around 1e-6; the
+      least-squares refit below then corrects a near miss, so more tries cost time per frame without
+      moving the plane;
       ``ground_max_tilt_deg=20.0`` and plane below the sensor: the sanity check that rejects walls and
       facades (vertical) and roofs/overhangs (above the sensor); roads steeper than ~36 % do not occur;
       ``ground_max_attempts=3``: a rejected plane's inliers are set aside and RANSAC runs again;
       ``ground_sample_size=10000``: RANSAC scores its hypotheses on a seeded random subset of this
       many points; the winning plane is then refitted (least squares, a few rounds) to the subset's
       points within the threshold (:func:`_refit_plane`), and every point of the scan within the
-      threshold of that plane is ground. Several times faster than RANSAC and refit on the whole
-      ~100k-point scan (they were most of the per-frame cost of ``run``).
+      threshold of that plane is ground. Scoring costs time in proportion to the points scored, and
+      thousands of road points already pin a plane, so a subset finds the same plane as the whole
+      scan for a fraction of the cost.
       Reproducibility: open3d stops RANSAC early once its running odds say the plane is found, and
       with its parallel threads when that happens varies from run to run, so the hypotheses tried, and
-      the points removed, varied too (a few points of 45k in about one frame in five, with or without
-      the subset). ``probability=1.0`` turns the early stop off: every one of ``ground_num_iterations``
-      hypotheses is scored, and 120 of 120 repeats over 24 synthetic and KITTI frames were identical.
+      a few of the points removed, could vary between runs. ``probability=1.0`` turns the early stop
+      off: every one of ``ground_num_iterations`` hypotheses is scored, so the result depends on the
+      seed alone (a test repeats it on ray-cast scans).
     Down-sampling:
       ``n_points=1024`` (the paper's N), ``method="fps"``, ``voxel_size=0.3`` (only for ``voxel``;
-      ~0.3 m keeps thin poles while reducing a scan to a few 10k points);
+      small enough that a thin pole keeps cells of its own, large enough to thin the dense near field);
       ``fps_candidates=16384``: FPS picks from a seeded random subset of this many points (None: all).
-      Its cost grows with the input; a 16k subset of the ~60k ground-removed points still covers the
-      scene evenly at N = 512-1024, at a quarter of the time (40 -> 11 ms CPU per KITTI frame).
+      Its cost grows with the input, while a random subset many times larger than N still samples
+      every part of the scene, so FPS over the subset covers the scene as evenly, for less time.
     Fallback:
       ``min_points=None`` means ``n_points``: a crop or ground removal leaving fewer points is undone.
     ``keep_reflectance=False``: the output is xyz ``(n, 3)``; True gives ``(n, 4)`` with reflectance.
@@ -131,7 +132,7 @@ def crop_range(points: NDArray, min_range: float, max_range: float) -> NDArray[n
     """Keep points with ``min_range < |xyz| < max_range`` (3-D distance from the sensor)."""
     points = _as_points(points)
     xyz = points[:, :3]
-    squared = np.einsum("ij,ij->i", xyz, xyz)  # no square root: ~3x faster on a 120k-point scan
+    squared = np.einsum("ij,ij->i", xyz, xyz)  # compare squared distances: no square root per point
     return points[(squared > min_range * min_range) & (squared < max_range * max_range)]
 
 
@@ -155,7 +156,7 @@ def _refit_plane(
 
     Why: the RANSAC plane rests on three points; the plane fitted to all of its inliers is what the
     ground actually is, so the band removed follows the road rather than one triple. Fitted on
-    RANSAC's subset: on the whole scan the rounds cost ~12 ms per KITTI frame for the same plane.
+    RANSAC's subset: the whole scan would cost time in proportion to its size for the same plane.
     """
     inliers = np.abs(xyz @ plane[:3] + plane[3]) <= threshold
     for _ in range(rounds):

@@ -58,6 +58,7 @@ def normalise_seq(seq: str | int) -> str:
 
 
 def list_sequences(root: Path) -> list[str]:
+    """Names under ``<root>/sequences``, naturally sorted, for error messages that say what exists."""
     sequences = root / "sequences"
     if not sequences.is_dir():
         return []
@@ -93,7 +94,8 @@ class KittiSequence(ScanFileSequence):
 
     A poses file without ``calib.txt`` (or without its ``Tr`` line) raises DataError: KITTI poses are
     in the camera frame, and using them as LiDAR-frame poses would give silently wrong metrics.
-    ``Tr``'s rotation is projected onto the nearest exact rotation (a ~1e-7 change) when read.
+    ``Tr``'s rotation is projected onto the nearest exact rotation (a change below the file's printed
+    precision) when read.
     """
 
     def __init__(self, root: str | os.PathLike[str], seq: str | int) -> None:

@@ -117,6 +117,7 @@ def read_tr(calib_path: Path, *, required: bool) -> NDArray[np.float64] | None:
 
 
 def check_pose_count(poses: NDArray[np.float64], count: int, poses_path: Path, scans: Path) -> None:
+    """One pose per scan file, or a DataError naming both counts (a mismatch would misalign them all)."""
     if len(poses) != count:
         raise DataError(
             f"{poses_path}: {len(poses)} poses but {count} scan files in {scans}; "
@@ -184,7 +185,8 @@ class ScanFileSequence:
     def _set_poses(
         self, poses: NDArray[np.float64] | None, tr: NDArray[np.float64] | None, camera_frame: bool
     ) -> None:
-        """Store ground truth in both frames, re-anchored so frame 0 = identity (DESIGN conventions)."""
+        """Store ground truth in both frames, re-anchored so frame 0 = identity: every trajectory in the
+        library starts there, so estimates and ground truth compare without an alignment step."""
         self._tr = tr
         self._gt_poses = None
         self.gt_poses_camera = None
