@@ -2,19 +2,12 @@
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import click
 
 from vcr_odom.cli.progress import console, frame_progress
-from vcr_odom.data.synth import (
-    SCENE_STYLES,
-    SENSOR_MODELS,
-    SEQUENCE_NAME,
-    SynthSequence,
-    write_sequence,
-)
+from vcr_odom.synth import SCENE_STYLES, SENSOR_MODELS, SEQUENCE_NAME, generate_sequence
 
 
 def _check_seq(ctx: click.Context, param: click.Parameter, value: str) -> str:
@@ -101,23 +94,23 @@ def synth(
     rate_hz: float,
 ) -> None:
     """Generate a synthetic LiDAR sequence with exact ground truth (the built-in data set)."""
-    sequence = SynthSequence(
-        frames=frames,
-        seed=seed,
-        speed=speed,
-        sensor=sensor,
-        height=height,
-        scene=scene,
-        stops=stops,
-        frame_period=1.0 / rate_hz,
-    )
-    start = time.perf_counter()
     with frame_progress(f"synth seed {seed}", frames) as advance:
-        seq_dir = write_sequence(sequence, out, seq=seq, progress=advance)
-    elapsed = time.perf_counter() - start
-    console.print(f"Wrote {frames} frames to {seq_dir} and poses to {Path(out) / 'poses' / f'{seq}.txt'}")
-    duration = sequence.timestamps[-1]
+        written = generate_sequence(
+            out,
+            seq,
+            progress=advance,
+            frames=frames,
+            seed=seed,
+            speed=speed,
+            sensor=sensor,
+            height=height,
+            scene=scene,
+            stops=stops,
+            frame_period=1.0 / rate_hz,
+        )
+    console.print(f"Wrote {written.frames} frames to {written.seq_dir} and poses to {written.poses_file}")
     console.print(
-        f"Drive: {sequence.length:.1f} m in {duration:.1f} s ({frames / elapsed:.1f} frames/s generated); "
-        f"{sensor} at {sequence.sensor.height:.2f} m, {scene} scene"
+        f"Drive: {written.length:.1f} m in {written.duration:.1f} s "
+        f"({written.frames / written.seconds:.1f} frames/s generated); "
+        f"{written.sensor} at {written.height:.2f} m, {written.scene} scene"
     )

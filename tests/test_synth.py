@@ -3,9 +3,9 @@ geometric check of the ground truth that does not trust the generator."""
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -15,17 +15,6 @@ from scipy.spatial import cKDTree
 
 from vcr_odom.cli.synth import synth
 from vcr_odom.data.base import LidarSequence
-from vcr_odom.data.synth import (
-    HEIGHT_RANGE,
-    KITTI_TR,
-    SCENE_STYLES,
-    SENSOR_MODELS,
-    SensorConfig,
-    SynthSequence,
-    generate_sequence,
-    write_bin,
-)
-from vcr_odom.data.synth_scene import StreetScene, Surface
 from vcr_odom.errors import ConfigError
 from vcr_odom.geometry import (
     camera_to_lidar_poses,
@@ -36,6 +25,20 @@ from vcr_odom.geometry import (
     transform_points,
 )
 from vcr_odom.io import read_kitti_calib, read_kitti_poses, read_times
+from vcr_odom.synth import (
+    HEIGHT_RANGE,
+    KITTI_TR,
+    SCENE_STYLES,
+    SENSOR_MODELS,
+    SensorConfig,
+    StreetScene,
+    Surface,
+    SynthConfig,
+    SynthSequence,
+    WrittenSequence,
+    generate_sequence,
+    write_bin,
+)
 
 FRAMES = 3
 
@@ -169,7 +172,7 @@ SENSOR_SPECS = {
 
 def _small(name: str, **changes: object) -> SensorConfig:
     """A preset with a coarse azimuth grid: the beam layout is what counts, and it casts fast."""
-    return replace(SensorConfig.model(name), azimuth_steps=256, **changes)
+    return SensorConfig.model(name).with_changes(azimuth_steps=256, **changes)
 
 
 def _elevations_deg(points: np.ndarray) -> np.ndarray:
@@ -366,11 +369,66 @@ def test_interrupted_write_leaves_no_file(tmp_path: Path, monkeypatch: pytest.Mo
         ({"scene": "moon"}, "scene"),
         ({"height": 0.0}, "height"),
         ({"frame_period": 0.0}, "frame_period"),
+        ({"window": 0}, "window"),
     ],
 )
 def test_bad_library_options_raise_config_errors(kwargs: dict, word: str) -> None:
     with pytest.raises(ConfigError, match=word):
         SynthSequence(**kwargs)
+
+
+def test_unknown_sensor_or_scene_lists_the_choices() -> None:
+    with pytest.raises(ConfigError, match="sensor: must be one of hdl64, hdl32, vlp16, os128"):
+        SynthConfig(sensor="hdl128")
+    with pytest.raises(ConfigError, match="scene: must be one of suburban, avenue, highway, oldtown"):
+        SynthConfig(scene="moon")
+
+
+@pytest.mark.parametrize(
+    ("changes", "message"),
+    [
+        ({"min_range": 5.0, "max_range": 5.0}, "min_range must be below max_range; got 5 and 5"),
+        ({"min_range": -1.0}, "min_range"),
+        ({"beam_blocks": ((2.0, -24.8, 0),)}, "beam_blocks"),
+        ({"beam_blocks": ()}, "beam_blocks"),
+        ({"azimuth_steps": 0}, "azimuth_steps"),
+        ({"dropout": 1.5}, "dropout"),
+        ({"height": 0.1}, "height"),
+    ],
+)
+def test_bad_sensor_settings_name_the_field(changes: dict, message: str) -> None:
+    with pytest.raises(ConfigError, match=f"SensorConfig: .*{message}"):
+        SensorConfig(**changes)
+    with pytest.raises(ConfigError, match=message):
+        SensorConfig.model("vlp16").with_changes(**changes)
+
+
+def test_config_round_trips_and_gives_the_same_drive_as_keywords() -> None:
+    config = SynthConfig(frames=4, seed=5, sensor="vlp16", height=1.9, scene="oldtown", stops=True)
+    assert config.sensor == SensorConfig.model("vlp16") and config.mounted_sensor.height == 1.9
+    assert SynthConfig.from_dict(json.loads(json.dumps(config.to_dict()))) == config
+    by_config, by_keywords = SynthSequence(config), SynthSequence(**config.to_dict())
+    assert by_config.name == by_keywords.name == "synth-seed5-oldtown-vlp16"
+    assert by_config.sensor == by_keywords.sensor and by_config.sensor.height == 1.9
+    np.testing.assert_array_equal(by_config.gt_poses, by_keywords.gt_poses)
+    assert SynthSequence(config, frames=6).frames == 6 and config.frames == 4
+    with pytest.raises(TypeError, match="SynthConfig"):
+        SynthSequence(40)  # type: ignore[arg-type]
+
+
+def test_generate_sequence_reports_what_it_wrote(tmp_path: Path) -> None:
+    config = SynthConfig(frames=2, seed=0, sensor=_small("vlp16"), height=2.0, frame_period=0.5)
+    written = generate_sequence(tmp_path, seq="07", config=config, scene="highway")
+    assert isinstance(written, WrittenSequence)
+    assert written.seq_dir == tmp_path / "sequences" / "07"
+    assert written.poses_file == tmp_path / "poses" / "07.txt" and written.poses_file.is_file()
+    assert len(list((written.seq_dir / "velodyne").glob("*.bin"))) == 2
+    assert (written.frames, written.sensor, written.height, written.scene) == (2, "vlp16", 2.0, "highway")
+    assert written.duration == 0.5 and written.seconds > 0.0
+    assert written.length > 1.0
+    assert written.length == pytest.approx(SynthSequence(config, scene="highway").length)
+    with pytest.raises(ConfigError, match="seq"):
+        generate_sequence(tmp_path, seq="../x", frames=2)
 
 
 def test_cli_writes_a_sequence_and_drops_stale_frames(written: Path, tmp_path: Path) -> None:
