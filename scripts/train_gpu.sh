@@ -2,7 +2,7 @@
 # One-shot training of VCR-Net's `paper` preset on a lent GPU, from caches carried there.
 #
 # The GPU machine has torch but neither open3d nor kiss-icp, and no network: pre-processing (ground
-# removal, farthest point sampling) runs here, into compact frame caches (~1 MB each), and the GPU
+# removal, farthest point sampling) runs here, into compact frame caches (int16 points), and the GPU
 # side needs torch + numpy only.
 #
 #   bash scripts/train_gpu.sh prepare runs/gpu              # here: synthetic drives + caches (open3d)
@@ -50,9 +50,8 @@ from pathlib import Path
 
 from torch.utils.data import Subset
 
-from vcr_odom.data.pairs import FrameCache, PairConfig, train_val_datasets
 from vcr_odom.model.config import VcrConfig
-from vcr_odom.train import TrainConfig, train
+from vcr_odom.training import TrainConfig, TrainingData, train, training_sets
 
 caches_dir, out_dir = Path(sys.argv[1]), Path(sys.argv[2])
 preset = os.environ.get("PRESET", "paper")
@@ -62,12 +61,8 @@ model = VcrConfig.preset(preset)
 paths = sorted(caches_dir.glob("*.npz"))
 if not paths:
     sys.exit(f"error: no .npz frame caches in {caches_dir} (run `train_gpu.sh prepare` first)")
-caches = [FrameCache.load(path, num_points=model.num_points) for path in paths]
-pairs = [
-    PairConfig(protocol="odometry", num_points=model.num_points, max_motion=15.0, reverse=True, augment=True),
-    PairConfig(protocol="same-scan", num_points=model.num_points),
-]
-train_set, val_set = train_val_datasets(caches, pairs)
+data = TrainingData(caches=paths, protocols=("odometry", "same-scan"), max_motion=15.0, reverse=True)
+train_set, val_set = training_sets(data, model, seed=0)
 if max_pairs:  # a rehearsal: the same code path on a handful of pairs
     train_set = Subset(train_set, range(min(max_pairs, len(train_set))))
     val_set = Subset(val_set, range(min(max_pairs, len(val_set))))

@@ -9,7 +9,7 @@ import pytest
 from click.testing import CliRunner
 
 from vcr_odom.cli.main import cli
-from vcr_odom.data.synth import generate_sequence
+from vcr_odom.synth import generate_sequence
 
 
 @pytest.fixture(scope="module")
@@ -64,7 +64,7 @@ def test_cache_train_resume_and_run_with_the_trained_weights(synthetic_root, tmp
         "--data-root",
         synthetic_root,
         "-b",
-        "vcr",
+        "vcr+none",
         "-b",
         "icp10",
         "--weights",
@@ -89,3 +89,30 @@ def test_vcr_without_weights_names_the_missing_file(synthetic_root, tmp_path, mo
     )
     assert result.exit_code != 0
     assert "vcr-default.safetensors" in result.output and "vcr-odom train" in result.output
+
+
+def test_training_options_are_the_configurations_fields():
+    """Each generated option has its field's default and bounds, so the two cannot drift apart."""
+    from vcr_odom.cli.train import train_command
+    from vcr_odom.training import TrainConfig, TrainingData
+
+    options = {param.name: param for param in train_command.params}
+    for config in (TrainConfig, TrainingData):
+        shared = set(config.model_fields) & set(options)
+        for name in shared:
+            assert options[name].default == config.model_fields[name].default, name
+    assert {"epochs", "lr", "out", "init_weights", "caches", "protocols", "val_fraction"} <= set(options)
+    assert (options["val_fraction"].type.min, options["val_fraction"].type.max) == (0.05, 0.5)
+    assert options["lr"].type.min == 0 and options["lr"].type.min_open
+
+
+def test_bad_training_options_are_usage_errors(tmp_path):
+    for args, expected in (
+        (["--epochs", "0"], "--epochs"),
+        (["--seq", "00", "--seq", "01", "--out", tmp_path / "c.npz"], "exactly one --seq"),
+        ([], "give training data"),
+    ):
+        command = "cache" if "--seq" in args else "train"
+        result = CliRunner().invoke(cli, [command, *[str(a) for a in args]])
+        assert result.exit_code == 2, result.output
+        assert expected in result.output

@@ -12,21 +12,19 @@ import torch
 from scipy.spatial import cKDTree
 
 from vcr_odom.data import open_sequence
-from vcr_odom.data.pairs import (
-    INT16_STEP,
-    FrameCache,
+from vcr_odom.data.frame_cache import INT16_STEP, FrameCache, build_frame_cache
+from vcr_odom.errors import ConfigError, DataError
+from vcr_odom.geometry import euler_zyx, invert, transform_points
+from vcr_odom.preprocess import PreprocessConfig, preprocess
+from vcr_odom.synth import SynthSequence
+from vcr_odom.training import (
     PairConfig,
     PairDataset,
-    build_frame_cache,
     pair_indices,
     random_rigid_transform,
     split_frames,
     train_val_datasets,
 )
-from vcr_odom.data.synth import SynthSequence
-from vcr_odom.errors import ConfigError, DataError
-from vcr_odom.geometry import euler_zyx, invert, transform_points
-from vcr_odom.preprocess import PreprocessConfig, preprocess
 
 N = 256
 REPO = Path(__file__).resolve().parents[1]
@@ -213,7 +211,8 @@ def test_loading_and_iterating_without_open3d(tmp_path: Path, synth_cache: Frame
     script = f"""
 import sys
 sys.modules["open3d"] = None
-from vcr_odom.data.pairs import FrameCache, PairConfig, PairDataset
+from vcr_odom.data.frame_cache import FrameCache
+from vcr_odom.training import PairConfig, PairDataset
 cache = FrameCache.load({str(path)!r})
 for protocol in ("same-scan", "odometry"):
     dataset = PairDataset(cache, PairConfig(protocol=protocol, num_points={N}, augment=True))

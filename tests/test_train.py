@@ -18,7 +18,7 @@ from torch.utils.data import Dataset
 from vcr_odom.errors import ConfigError, DataError
 from vcr_odom.model import VcrConfig
 from vcr_odom.model.weights import load_weights
-from vcr_odom.train import ProgressEvent, TrainConfig, pretrain, resolve_device, train
+from vcr_odom.training import ProgressEvent, TrainConfig, pose_errors, pretrain, resolve_device, train
 
 TINY = VcrConfig(
     num_points=64,
@@ -39,7 +39,7 @@ def _rotation(yaw: float) -> torch.Tensor:
 
 
 class RandomPairs(Dataset):
-    """The pairs.py contract: random clouds, random rigid transforms, target = R source + t (shuffled
+    """The pair contract of vcr_odom.training: random clouds, random rigid transforms, target = R source + t (shuffled
     rows); ``set_epoch`` changes the transforms per epoch, as the paper protocol's dataset does."""
 
     def __init__(self, size: int, seed: int = 0, n: int = 64) -> None:
@@ -64,6 +64,24 @@ class RandomPairs(Dataset):
         return {"source": source, "target": target, "transform": transform, "meta": f"pair {index}"}
 
 
+class MislabelledPairs(RandomPairs):
+    """Three pairs whose labels are off by a known rotation (yaw, applied to the source side) and a
+    known shift, so that a network that registers perfectly has known validation errors."""
+
+    YAW_DEG = (2.0, 4.0, 8.0)
+    SHIFT_M = (0.1, 0.2, 0.4)
+
+    def __init__(self) -> None:
+        super().__init__(3, seed=1)
+
+    def __getitem__(self, index: int) -> dict[str, object]:
+        sample = super().__getitem__(index)
+        label = sample["transform"].clone()  # type: ignore[union-attr]
+        label[:3, :3] = label[:3, :3] @ _rotation(math.radians(self.YAW_DEG[index]))
+        label[0, 3] += self.SHIFT_M[index]
+        return {**sample, "transform": label}
+
+
 def _config(tmp_path: Path, **changes: object) -> TrainConfig:
     base = {"epochs": 2, "batch_size": 2, "lr": 1e-3, "device": "cpu", "out": tmp_path, "seed": 3}
     base.update(changes)
@@ -71,14 +89,20 @@ def _config(tmp_path: Path, **changes: object) -> TrainConfig:
 
 
 def test_loss_decreases_on_a_tiny_overfit_set(tmp_path: Path) -> None:
-    data = RandomPairs(2)
+    data, mislabelled = RandomPairs(2), MislabelledPairs()
     events: list[ProgressEvent] = []
-    result = train(TINY, data, data, _config(tmp_path, epochs=12, lr=3e-3), progress=events.append)
+    result = train(TINY, data, mislabelled, _config(tmp_path, epochs=12, lr=3e-3), progress=events.append)
     losses = [entry["train_loss"] for entry in result.history]
     assert losses[-1] < 0.7 * losses[0], losses
-    assert result.history[-1]["val_rot_rmse_deg"] >= 0 and "val_trans_rmse_m" in result.history[-1]
     assert "val_trans_loss" in result.history[-1]
     assert {e.kind for e in events} == {"start", "step", "epoch"}
+    assert events[0].kind == "start" and events[0].metrics == {"train_pairs": 2, "val_pairs": 3}
+    # The network registers these moved copies all but exactly, so the validation RMSEs are those
+    # of the labels' known errors, over pairs (batches of 2 + 1: a mean of batch means would differ).
+    rot_rmse = math.sqrt(sum(a * a for a in MislabelledPairs.YAW_DEG) / 3)
+    trans_rmse = math.sqrt(sum(d * d for d in MislabelledPairs.SHIFT_M) / 3)
+    assert result.history[-1]["val_rot_rmse_deg"] == pytest.approx(rot_rmse, rel=1e-3)
+    assert result.history[-1]["val_trans_rmse_m"] == pytest.approx(trans_rmse, rel=1e-3)
     history = json.loads((tmp_path / "history.json").read_text())
     assert [entry["epoch"] for entry in history] == list(range(12))
     assert (tmp_path / "run.json").is_file() and (tmp_path / "last.pt").is_file()
@@ -161,7 +185,7 @@ DDP_SCRIPT = """
 import os, sys, torch
 sys.path.insert(0, {tests!r})
 from test_train import TINY, RandomPairs, _config
-from vcr_odom.train import train
+from vcr_odom.training import train
 from pathlib import Path
 out = Path({out!r})
 result = train(TINY, RandomPairs(6), RandomPairs(3, seed=1), _config(out / "run", epochs=1))
@@ -202,8 +226,6 @@ def test_corrupt_checkpoint_is_a_data_error_naming_it(tmp_path: Path) -> None:
 
 
 def test_pose_errors_resolve_small_angles() -> None:
-    from vcr_odom.training import pose_errors
-
     yaw = math.radians(0.01)
     rotation = _rotation(yaw).unsqueeze(0)
     angle, distance = pose_errors(

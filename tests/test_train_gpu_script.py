@@ -11,11 +11,12 @@ from pathlib import Path
 
 import pytest
 
-from vcr_odom.data.pairs import PairConfig, build_frame_cache
-from vcr_odom.data.synth import SynthSequence
+from vcr_odom.data.frame_cache import build_frame_cache
 from vcr_odom.model.config import VcrConfig
 from vcr_odom.model.weights import load_weights
 from vcr_odom.preprocess import network_preprocess_config
+from vcr_odom.synth import SynthSequence
+from vcr_odom.training import PairConfig
 
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "scripts" / "train_gpu.sh"

@@ -39,12 +39,12 @@ def load_checkpoint(path: Path, task: str, model_config: VcrConfig) -> dict[str,
         raise DataError(f"{path}: not a vcr-odom checkpoint of version {CHECKPOINT_VERSION}")
     if state["task"] != task:
         raise ConfigError(f"{path} is a {state['task']!r} checkpoint; cannot resume it with {task!r}")
-    stored, wanted = state["model_config"], model_config.to_dict()
-    if stored != wanted:
-        diffs = [
-            f"{k}: checkpoint {stored.get(k)!r}, requested {v!r}"
-            for k, v in wanted.items()
-            if stored.get(k) != v
-        ]
+    try:  # read like a weight file's: a field older than the checkpoint takes its legacy value
+        stored = VcrConfig.from_dict(state["model_config"])
+    except ConfigError as error:
+        raise DataError(f"{path}: the stored model configuration is invalid: {error}") from error
+    if stored != model_config:
+        found, wanted = stored.to_dict(), model_config.to_dict()
+        diffs = [f"{k}: checkpoint {found[k]!r}, requested {v!r}" for k, v in wanted.items() if found[k] != v]
         raise ConfigError(f"{path}: model configuration differs from the checkpoint ({'; '.join(diffs)})")
     return state

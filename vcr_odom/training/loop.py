@@ -1,4 +1,8 @@
-"""The one epoch loop behind ``train`` and ``pretrain``: set up (or resume), train, validate, record.
+"""The one epoch loop behind :func:`train` and :func:`pretrain`: set up (or resume), train, validate, record.
+
+:func:`train` optimises the paper's correspondence loss (§IV-F; the transformation loss and the pose
+RMSEs are only monitored) and :func:`pretrain` the encoder's triplet loss (Algorithm 1); a
+:class:`~vcr_odom.training.tasks.Task` is what differs between them.
 
 Why resume is exact: the checkpoint holds model, optimiser, scheduler, grad scaler, best score, history
 and every rank's RNG states, and each epoch's data order depends only on (seed, epoch) (a generator
@@ -36,7 +40,32 @@ from vcr_odom.training.runtime import (
     seed_everything,
     set_rng_state,
 )
-from vcr_odom.training.tasks import Task, unwrap
+from vcr_odom.training.tasks import Pretraining, Registration, Task, unwrap
+
+
+def train(
+    model_config: VcrConfig,
+    train_dataset: Dataset,
+    val_dataset: Dataset,
+    train_config: TrainConfig,
+    resume: bool = False,
+    progress: Progress | None = None,
+) -> TrainResult:
+    """Train VCR-Net with the correspondence loss; ``best.safetensors`` is chosen on ``val_dataset``."""
+    return fit(Registration(), model_config, train_dataset, val_dataset, train_config, resume, progress)
+
+
+def pretrain(
+    model_config: VcrConfig,
+    train_dataset: Dataset,
+    val_dataset: Dataset,
+    train_config: TrainConfig,
+    resume: bool = False,
+    progress: Progress | None = None,
+) -> TrainResult:
+    """Pre-train the encoder with the triplet loss. Its ``best.safetensors`` holds a whole VCRNet (encoder
+    trained, the rest at initialisation), to pass as ``TrainConfig.init_weights`` to :func:`train`."""
+    return fit(Pretraining(), model_config, train_dataset, val_dataset, train_config, resume, progress)
 
 
 @dataclass
@@ -81,6 +110,9 @@ def fit(
     ctx = init_distributed(config.device)
     try:
         session = _start(task, model_config, config, resume, ctx)
+        if progress is not None and ctx.main:
+            sizes = {"train_pairs": len(train_dataset), "val_pairs": len(val_dataset)}
+            progress(ProgressEvent("start", task.name, session.start_epoch, config.epochs, metrics=sizes))
         started = time.perf_counter()
         for epoch in range(session.start_epoch, config.epochs):
             done = epoch - session.start_epoch
@@ -88,8 +120,6 @@ def fit(
                 elapsed = time.perf_counter() - started
                 if elapsed * (done + 1) / done > config.time_limit_s:
                     break
-            if progress is not None and ctx.main and epoch == session.start_epoch:
-                progress(ProgressEvent("start", task.name, epoch, config.epochs))
             train_metrics = _train_epoch(session, train_dataset, epoch, progress)
             session.scheduler.step()
             val_metrics = _validate(session, val_dataset, epoch)
