@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import math
 import warnings
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -51,7 +50,7 @@ def vcr_variant(path: Path, label: str, **overrides: Any) -> Any:
     from vcr_odom.registration import make_method
 
     method = make_method("vcr", weights=path, device="cpu", passes=1)
-    config = replace(method.config, **overrides)
+    config = method.config.with_changes(**overrides)
     method.config = config
     method.model.config = config
     method.preprocess_config = network_preprocess_config(config)
@@ -82,7 +81,7 @@ def far_share(method: Any, frames: list[np.ndarray], max_range: float) -> float:
     """Share of the network's points farther than 40 m from the sensor with an input crop of ``max_range``."""
     from vcr_odom.preprocess import network_preprocess_config, preprocess
 
-    config = network_preprocess_config(replace(method.config, input_max_range=max_range))
+    config = network_preprocess_config(method.config.with_changes(input_max_range=max_range))
     shares = [float((np.linalg.norm(preprocess(f, config)[:, :3], axis=1) > 40.0).mean()) for f in frames]
     return float(np.mean(shares))
 
@@ -97,9 +96,9 @@ def main() -> None:
 
     torch.set_num_threads(1)
     from vcr_odom.data import open_sequence
-    from vcr_odom.gap_sweep import markdown_table, run_gap_sweep
+    from vcr_odom.data.selection import select_frames
+    from vcr_odom.evaluation.gap_sweep import markdown_table, run_gap_sweep
     from vcr_odom.model.weights import default_weights_path
-    from vcr_odom.odometry import select_frames
 
     sequence = open_sequence(args.seq, data_root=args.data_root)
     selection = select_frames(len(sequence), args.frames)

@@ -3,7 +3,7 @@
 Not a test. Methods get the raw frames (each does its own pre-processing, as in `run`) and no
 initial guess; source = frame i + d, target = frame i, truth = inv(P_i) @ P_(i+d). Prints one
 markdown table (rows method x gap): mean true motion, estimated/true motion length ratio, rotation
-and translation RMSE/MAE, success rate and ms per pair (see vcr_odom/gap_sweep.py).
+and translation RMSE/MAE, success rate and ms per pair (see vcr_odom/evaluation/gap_sweep.py).
 
     .venv/bin/python benchmarks/gap_sweep.py --data-root ../shared/data/kitti-sample --seq 00 \\
         --frames 40:60
@@ -65,8 +65,8 @@ def set_threads(threads: int | None) -> int:
 
 def open_selection(args: argparse.Namespace) -> tuple[Any, list[int]]:
     from vcr_odom.data import open_sequence
-    from vcr_odom.gap_sweep import synth_sequence
-    from vcr_odom.odometry import select_frames
+    from vcr_odom.data.selection import select_frames
+    from vcr_odom.evaluation.gap_sweep import synth_sequence
 
     if args.synth is not None:
         sequence = synth_sequence(args.synth, args.synth_frames, args.speed, args.sensor, args.scene)
@@ -108,7 +108,7 @@ def main() -> None:
     threads = set_threads(args.threads)
 
     from vcr_odom.errors import VcrOdomError
-    from vcr_odom.gap_sweep import DEFAULT_GAPS, markdown_table, run_gap_sweep
+    from vcr_odom.evaluation.gap_sweep import DEFAULT_GAPS, markdown_table, run_gap_sweep
     from vcr_odom.results import write_json
 
     try:

@@ -29,12 +29,12 @@ def main() -> None:
     warnings.simplefilter("ignore")
 
     from vcr_odom.data import open_sequence
+    from vcr_odom.data.selection import select_frames
+    from vcr_odom.evaluation.pairs import evaluate_pair_protocol, pair_sets
+    from vcr_odom.evaluation.pairs_polish import PolishedRegistrar, SparseIcp
     from vcr_odom.model.weights import read_weights
-    from vcr_odom.odometry import select_frames
-    from vcr_odom.pair_benchmark import evaluate_pair_protocol, pair_sets
+    from vcr_odom.odometry.factory import POLISHED_VCR_PASSES
     from vcr_odom.registration import make_method
-    from vcr_odom.registration.polish import PolishedRegistrar, SparseIcp
-    from vcr_odom.registration.vcr import POLISHED_PASSES
 
     sequence = open_sequence(args.seq, data_root=args.data_root)
     frames = select_frames(len(sequence), args.frames)
@@ -54,8 +54,8 @@ def main() -> None:
     for kind, pairs in pair_sets(sequence, frames, args.points, args.seed, max_range=crop).items():
         methods = ["icp10", "fpfh", tuned_fpfh(), *[vcr(w, p) for w in args.weights for p in (1, 2)]]
         methods += [PolishedRegistrar(tuned_fpfh(), SparseIcp())]
-        # As compare's vcr+icp: one network pass before the polish (POLISHED_PASSES).
-        methods += [PolishedRegistrar(vcr(w, POLISHED_PASSES), SparseIcp()) for w in args.weights]
+        # As compare's vcr+icp: one network pass before the polish (POLISHED_VCR_PASSES).
+        methods += [PolishedRegistrar(vcr(w, POLISHED_VCR_PASSES), SparseIcp()) for w in args.weights]
         results = evaluate_pair_protocol(methods, pairs)
         print(f"\n{kind}: {len(pairs)} pairs of {args.points} points, frames {frames[0]}-{frames[-1]}\n")
         print("| method | rot RMSE / MAE [deg] | trans RMSE / MAE [m] | success | ms / pair |")

@@ -10,8 +10,10 @@ read the same frames in the same invocation, so machine load affects them alike.
 Without --data-root it generates a 100-frame synthetic sequence in a temporary folder.
 ``--network-batch B`` (repeatable) also times VCR-Net alone on the benchmark's frames: pairs per second
 of batched inference (encode both clouds + register) at each batch size, as a ratio to the first.
-Per-stage seconds: load (reading frames), method/prepare (per-frame work: crop, down-sampling,
-normals, features, encoder), method/register (pairwise registration), bookkeeping (chaining, I/O).
+Per-stage seconds, timed by the frame loop (``vcr_odom.odometry.loop``): load (reading frames), prepare
+(per-frame work: crop, ground removal, down-sampling, the encoder, the polish's cloud), register
+(pairwise estimates), advance (plausibility check, polish, chaining), step (a method with its own
+state, kiss-icp), bookkeeping (the rest: callbacks, I/O).
 """
 
 from __future__ import annotations
@@ -32,8 +34,8 @@ from rich.table import Table
 def measure(args: argparse.Namespace) -> dict:
     """Worker: run one method and report its timings and this process's peak memory."""
     from vcr_odom.data import open_sequence
-    from vcr_odom.odometry import run_odometry, select_frames
-    from vcr_odom.pipeline import build_odometry, parse_method_spec
+    from vcr_odom.data.selection import select_frames
+    from vcr_odom.odometry import build_odometry, parse_method_spec, run_odometry
 
     sequence = open_sequence(args.seq, data_root=args.data_root)
     indices = select_frames(len(sequence), args.frames, args.stride)
@@ -115,7 +117,7 @@ def network_throughput(args: argparse.Namespace, data_root: Path) -> list[dict]:
     import torch
 
     from vcr_odom.data import open_sequence
-    from vcr_odom.odometry import select_frames
+    from vcr_odom.data.selection import select_frames
     from vcr_odom.registration.vcr import VcrRegistrar
 
     registrar = VcrRegistrar(args.weights, args.device)
@@ -184,7 +186,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as scratch:
         data_root = args.data_root
         if data_root is None:
-            from vcr_odom.data.synth import generate_sequence
+            from vcr_odom.synth import generate_sequence
 
             data_root = Path(scratch)
             generate_sequence(data_root, seq=args.seq, frames=100, seed=0)

@@ -30,14 +30,13 @@ def main() -> None:
     warnings.simplefilter("ignore")
 
     from vcr_odom.data import open_sequence
+    from vcr_odom.data.selection import select_frames
     from vcr_odom.metrics import evaluate
-    from vcr_odom.odometry import run_odometry, select_frames
-    from vcr_odom.pipeline import ground_truth_for
-    from vcr_odom.refine import RefinedOdometry
-    from vcr_odom.registration import make_polished_method
+    from vcr_odom.odometry import IcpPolish, KissIcpPolish, Odometry, build_odometry, run_odometry
+    from vcr_odom.odometry.outputs import ground_truth_for
 
     sequence = open_sequence(args.seq, data_root=args.data_root)
-    registrar = make_polished_method("vcr", True, weights=args.weights, device=args.device)
+    registrar = build_odometry("vcr+icp", weights=args.weights, device=args.device).registrar
     table = Table(title=f"{sequence.name}: VCR + polish, with and without the motion-prior start")
     for column in ("stride", "polish", "starts", "end-point [%]", "rot RMSE [deg]", "trans RMSE [m]", "won"):
         table.add_column(column, justify="right" if column != "polish" else "left")
@@ -46,10 +45,13 @@ def main() -> None:
         gt = ground_truth_for(sequence, indices)
         for refine in ("icp", "kiss-icp"):
             for both in (True, False):
-                method = RefinedOdometry(registrar, refine, also_from_last_motion=both)
+                polish = (
+                    IcpPolish(second_start=both) if refine == "icp" else KissIcpPolish(keep_prediction=both)
+                )
+                method = Odometry(registrar, polish)
                 run = run_odometry(sequence, method, indices)
                 report = evaluate(run.poses, gt)
-                won = Counter(i.get("icp_start") or i.get("kiss_start") for i in run.per_frame_info[1:])
+                won = Counter(i.get("polish_start") for i in run.per_frame_info[1:])
                 table.add_row(
                     str(stride),
                     refine,

@@ -15,9 +15,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from vcr_odom.data.pairs import FrameCache, PairConfig, train_val_datasets
+from vcr_odom.data.frame_cache import FrameCache
 from vcr_odom.model.weights import load_weights
-from vcr_odom.training.tasks import pose_errors
+from vcr_odom.training import PairConfig, pose_errors, train_val_datasets
 
 
 def main() -> None:

@@ -6,12 +6,9 @@ from pathlib import Path
 
 import click
 
-from vcr_odom.cli.compare import run_comparison
-from vcr_odom.cli.options import FrameSelection
-from vcr_odom.cli.progress import console
-from vcr_odom.data.synth import generate_sequence
-
-DEMO_METHODS = ["icp10", "icp", "kiss-icp", "vcr+icp", "vcr+kiss-icp"]
+from vcr_odom.cli.compare import print_comparison
+from vcr_odom.cli.progress import console, frame_progress
+from vcr_odom.evaluation.demo import run_demo
 
 
 @click.command("demo")
@@ -38,8 +35,5 @@ DEMO_METHODS = ["icp10", "icp", "kiss-icp", "vcr+icp", "vcr+kiss-icp"]
 )
 def demo(frames: int, seed: int, results_dir: Path) -> None:
     """Generate a synthetic KITTI-layout sequence, run VCR-Net with both polishes and the baselines on it, print a table and write a plot."""
-    data_root = results_dir / "demo-data"
-    console.print(f"Generating {frames} synthetic frames (seed {seed}) in {data_root} ...")
-    generate_sequence(data_root, seq="00", frames=frames, seed=seed)
-    selection = FrameSelection(data_root, "00", folder=None, poses=None, calib=None, frames=None, stride=1)
-    run_comparison(selection, DEMO_METHODS, "constant-velocity", results_dir)
+    console.print(f"Generating {frames} synthetic frames (seed {seed}) in {results_dir / 'demo-data'} ...")
+    print_comparison(run_demo(frames, seed, results_dir, progress=frame_progress), stride=1)

@@ -9,9 +9,7 @@ import click
 
 from vcr_odom.cli.progress import console, notes
 from vcr_odom.cli.tables import report_table
-from vcr_odom.evaluation import evaluate_files
-from vcr_odom.plots import plot_pair_errors, plot_trajectories
-from vcr_odom.results import write_json
+from vcr_odom.evaluation.files import evaluate_files, write_evaluation
 
 
 @click.command("eval")
@@ -88,14 +86,6 @@ def evaluate(
     console.print(
         report_table(evaluation.report, title=f"{est_path.name} vs {gt_path.name} ({evaluation.frame})")
     )
-    if json_path is not None:
-        write_json(json_path, evaluation.report.to_dict(include_arrays=True))
-        console.print(f"figures written to {json_path}")
-    if plot_path is not None:
-        plot_trajectories(plot_path, {est_path.stem: evaluation.est}, evaluation.gt, title=est_path.name)
-        errors_path = plot_path.with_name(plot_path.stem + "_pair_errors.png")
-        pairs = evaluation.report.pairs
-        plot_pair_errors(
-            errors_path, {est_path.stem: pairs.rot_errors_deg}, {est_path.stem: pairs.trans_errors_m}
-        )
-        console.print(f"plots written to {plot_path} and {errors_path}")
+    written = write_evaluation(evaluation, est_path.stem, json_path=json_path, plot_path=plot_path)
+    if written:
+        console.print(f"written: {', '.join(str(path) for path in written)}")

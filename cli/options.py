@@ -4,15 +4,13 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, TypeVar
 
 import click
 
-from vcr_odom.data import LidarSequence, open_sequence
+from vcr_odom.data.selection import FrameSelection
 from vcr_odom.errors import VcrOdomError
-from vcr_odom.odometry import select_frames
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -75,31 +73,6 @@ def sequence_options(function: F) -> F:
     return wrapper  # type: ignore[return-value]
 
 
-@dataclass(frozen=True)
-class FrameSelection:
-    """What ``sequence_options`` parsed: the frames' source and which of its frames to use."""
-
-    data_root: Path | None
-    seq: str
-    folder: Path | None
-    poses: Path | None
-    calib: Path | None
-    frames: str | None
-    stride: int
-
-    def open(self) -> LidarSequence:
-        seq = None if self.folder else self.seq  # --seq has a default; --folder wins over it
-        return open_sequence(
-            seq, data_root=self.data_root, folder=self.folder, poses=self.poses, calib=self.calib
-        )
-
-    def indices(self, sequence: LidarSequence) -> list[int]:
-        return select_frames(len(sequence), self.frames, self.stride)
-
-    def as_config(self) -> dict[str, Any]:
-        return asdict(self)
-
-
 def results_option(function: F) -> F:
     return click.option(
         "--results-dir",
@@ -123,15 +96,17 @@ def initial_guess_option(function: F) -> F:
 
 def describe_methods() -> str:
     """The method list for a command's epilog (click keeps \\b blocks unwrapped)."""
-    from vcr_odom.refine import REFINE_CHOICES
+    from vcr_odom.odometry.factory import DEFAULT_GLOBAL_POLISH, GLOBAL_METHODS
+    from vcr_odom.odometry.polish import POLISHES
     from vcr_odom.registration import METHOD_NAMES
 
     lines = [f"  {name:<10} {text}" for name, text in METHOD_NAMES.items()]
-    polish = [f"  +{name:<9} {text}" for name, text in REFINE_CHOICES.items() if name != "none"]
+    polish = [f"  +{name:<9} {text}" for name, text in POLISHES.items()]
     return (
         "\b\nMethods:\n"
         + "\n".join(lines)
-        + "\n\b\nPolish of a pairwise method (compare: NAME+POLISH):\n"
+        + "\n\b\nPolish of a pairwise method (NAME+POLISH; "
+        + f"{', '.join(GLOBAL_METHODS)} get +{DEFAULT_GLOBAL_POLISH} unless told, the others +none):\n"
         + "\n".join(polish)
     )
 
@@ -158,13 +133,3 @@ def vcr_options(function: F) -> F:
         type=click.Path(path_type=Path, exists=True, dir_okay=False),
         help="VCR-Net weights (.safetensors); default: the shipped weights/vcr-default.safetensors.",
     )(function)
-
-
-def method_options(
-    method: str, weights: Path | None, device: str, passes: int | None = None
-) -> dict[str, Any]:
-    """Constructor options of ``method`` from the VCR options (``passes`` only when given, so that
-    the polished/unpolished default applies otherwise)."""
-    if method != "vcr":
-        return {}
-    return {"weights": weights, "device": device} | ({"passes": passes} if passes is not None else {})

@@ -1,4 +1,4 @@
-"""Rich tables for evaluation reports and method comparisons (degrees and metres, as DESIGN asks)."""
+"""Rich tables for evaluation reports and method comparisons (angles in degrees, distances in metres)."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ from dataclasses import dataclass
 from rich.markup import escape
 from rich.table import Table
 
+from vcr_odom.evaluation.pairs import PairProtocolResult
 from vcr_odom.metrics import EvaluationReport
-from vcr_odom.pair_benchmark import PairProtocolResult
 
 
 def _f(value: float, digits: int = 3) -> str:

@@ -11,10 +11,10 @@ from click.testing import CliRunner
 
 from vcr_odom.cli.main import cli
 from vcr_odom.data import KittiSequence
-from vcr_odom.data.synth import generate_sequence
 from vcr_odom.geometry import relative, rotation_angle
 from vcr_odom.io import read_kitti_poses
 from vcr_odom.registration import make_method
+from vcr_odom.synth import generate_sequence
 
 FRAMES = 12
 
@@ -245,3 +245,8 @@ def test_demo_runs_vcr_with_the_shipped_weights(tmp_path):
     report = json.loads(((tmp_path / "latest").resolve() / "compare.json").read_text())
     assert report["vcr+icp"]["pairs"]["success_rate"] > 0.9
     assert report["vcr+kiss-icp"]["pairs"]["success_rate"] > 0.9
+    # The network alone, with nothing to rescue it (the polishes also start from the motion prior):
+    # a broken network fails here even where the polished rows pass.
+    alone = report["vcr"]["pairs"]
+    assert report["vcr"]["run"]["flagged_frames"] == []
+    assert alone["success_rate"] == 1.0 and alone["trans_rmse_m"] < 0.15 and alone["rot_rmse_deg"] < 0.5

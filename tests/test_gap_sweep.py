@@ -7,10 +7,10 @@ from collections import Counter
 import numpy as np
 import pytest
 
-from vcr_odom.data.synth import SynthSequence
 from vcr_odom.errors import ConfigError
-from vcr_odom.gap_sweep import gap_pairs, markdown_table, run_gap_sweep
+from vcr_odom.evaluation.gap_sweep import gap_pairs, markdown_table, run_gap_sweep
 from vcr_odom.registration.base import RegistrationResult
+from vcr_odom.synth import SynthSequence
 
 FRAMES = 12
 

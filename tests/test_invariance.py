@@ -105,8 +105,8 @@ def test_legacy_weight_files_keep_their_encoder_and_pipeline(tmp_path) -> None:
 @pytest.fixture(scope="module")
 def shipped_pair():
     """The shipped registrar and two frames of an unseen synthetic drive 5 frames (~5 m) apart."""
-    from vcr_odom.data.synth import SynthSequence
     from vcr_odom.registration.vcr import VcrRegistrar
+    from vcr_odom.synth import SynthSequence
 
     torch.set_num_threads(1)
     registrar = VcrRegistrar(device="cpu", passes=1)

@@ -1,6 +1,10 @@
-"""The explicit package list in pyproject.toml must name every package, or a wheel silently drops it."""
+"""What a regular (non-editable) install contains: every package, the CLI, and the shipped weights."""
 
+import shutil
+import subprocess
+import sys
 import tomllib
+import zipfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -11,5 +15,25 @@ def test_every_library_package_is_installed_and_cli_is_not_top_level():
     on_disk = {
         ".".join(init.parent.relative_to(ROOT).parts) for init in (ROOT / "vcr_odom").rglob("__init__.py")
     }
-    assert on_disk | {"vcr_odom.cli"} == set(setuptools["packages"])
-    assert setuptools["package-dir"] == {"vcr_odom.cli": "cli"}
+    assert on_disk | {"vcr_odom.cli", "vcr_odom.weights"} == set(setuptools["packages"])
+    assert setuptools["package-dir"] == {"vcr_odom.cli": "cli", "vcr_odom.weights": "weights"}
+
+
+def test_the_wheel_carries_the_shipped_weights_and_the_cli(tmp_path: Path) -> None:
+    """A wheel is what ``pip install .`` installs: without the weights in it, ``run`` fails outside
+    the source tree. Built from a copy, so setuptools' build/ folder stays out of the checkout."""
+    source = tmp_path / "source"
+    source.mkdir()
+    for name in ("pyproject.toml", "README.md", "LICENSE"):
+        shutil.copy2(ROOT / name, source / name)
+    for name in ("vcr_odom", "cli", "weights"):
+        shutil.copytree(ROOT / name, source / name, ignore=shutil.ignore_patterns("__pycache__"))
+    command = [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q"]
+    subprocess.run([*command, "-w", str(tmp_path), "."], check=True, capture_output=True, cwd=source)
+    (wheel,) = tmp_path.glob("vcr_odom-*.whl")
+    names = set(zipfile.ZipFile(wheel).namelist())
+    shipped = {p.relative_to(ROOT).as_posix() for p in (ROOT / "weights").rglob("*.safetensors")}
+    assert shipped and {f"vcr_odom/{name}" for name in shipped} <= names
+    assert "vcr_odom/weights/MODEL_CARD.md" in names
+    assert "vcr_odom/cli/main.py" in names
+    assert not any(name.startswith(("cli/", "weights/", "tests/")) for name in names)

@@ -1,4 +1,4 @@
-"""RefinedOdometry: a global estimate polished by ICP or kiss-icp.
+"""Odometry with a polish: a global estimate refined by ICP or kiss-icp.
 
 The accuracy test uses FPFH+RANSAC as the global registrar (no VCR weights needed). Exact-equality
 tests use ICP as the "global" registrar instead: open3d's multi-threaded RANSAC is not reproducible
@@ -15,15 +15,17 @@ import pytest
 from scripted_registrar import ScriptedRegistrar
 
 from vcr_odom.data import KittiSequence
-from vcr_odom.data.synth import SynthSequence
 from vcr_odom.errors import ConfigError
 from vcr_odom.geometry import make_transform, normalise_to_first, rotation_from_euler_zyx
 from vcr_odom.metrics import trajectory_pair_errors
-from vcr_odom.odometry import InitialGuess, PairwiseOdometry, run_odometry
-from vcr_odom.pipeline import run_summary
-from vcr_odom.refine import REFINE_CHOICES, RefinedOdometry
+from vcr_odom.odometry import IcpPolish, InitialGuess, KissIcpPolish, Odometry, run_odometry
+from vcr_odom.odometry.factory import build_odometry
+from vcr_odom.odometry.guided_kiss import GuidedKissICP
+from vcr_odom.odometry.outputs import run_summary
+from vcr_odom.odometry.polish import POLISHES
 from vcr_odom.registration import SequentialOdometry, make_method
 from vcr_odom.registration.base import RegistrationResult
+from vcr_odom.synth import SynthSequence
 
 
 @pytest.fixture(scope="module")
@@ -31,35 +33,39 @@ def synth() -> SynthSequence:
     return SynthSequence(frames=5, seed=0)
 
 
-def test_bad_refine_name_lists_the_choices() -> None:
+def test_bad_polish_name_lists_the_choices() -> None:
     with pytest.raises(ConfigError) as error:
-        RefinedOdometry(make_method("icp10"), refine="gicp")
-    for choice in REFINE_CHOICES:
+        build_odometry("icp10+gicp")
+    for choice in POLISHES:
         assert choice in str(error.value)
 
 
 def test_names_and_protocol() -> None:
-    registrar = make_method("fpfh")
-    assert RefinedOdometry(registrar, "none").name == "fpfh"
-    assert RefinedOdometry(registrar, "ICP").name == "fpfh+icp"
-    method = RefinedOdometry(registrar, "kiss-icp")
+    assert build_odometry("fpfh+none").name == "fpfh"
+    assert build_odometry("fpfh+ICP").name == "fpfh+icp"
+    method = build_odometry("fpfh")  # a global method's default polish
     assert method.name == "fpfh+kiss-icp"
     assert isinstance(method, SequentialOdometry)
+    assert build_odometry("icp10").name == "icp10"  # a local method gets none
+    with pytest.raises(ConfigError, match="kiss-icp is a sequential odometry"):
+        build_odometry("kiss-icp+icp")
 
 
-def test_none_equals_plain_pairwise_odometry(synth: SynthSequence) -> None:
+def test_identity_start_differs_from_constant_velocity_only_in_the_guess(synth: SynthSequence) -> None:
     indices = list(range(len(synth)))
     registrar = make_method("icp10")
-    refined = run_odometry(synth, RefinedOdometry(registrar, "none"), indices)
-    plain = run_odometry(synth, PairwiseOdometry(registrar, InitialGuess.IDENTITY), indices)
-    np.testing.assert_allclose(refined.poses, plain.poses, atol=1e-9)
-    assert refined.stage_seconds["method/refine"] == 0.0
+    constant = run_odometry(synth, Odometry(registrar), indices)
+    identity = run_odometry(synth, Odometry(registrar, initial_guess=InitialGuess.IDENTITY), indices)
+    gt = normalise_to_first(synth.gt_poses[indices])
+    for run in (constant, identity):  # ~0.7 m per frame: within ICP's 1 m gate from either start
+        assert trajectory_pair_errors(run.poses, gt).trans_rmse_m < 0.1
+    assert {"load", "prepare", "register", "advance", "bookkeeping"} == set(constant.stage_seconds)
 
 
-@pytest.mark.parametrize("refine", ["icp", "kiss-icp"])
-def test_reset_gives_identical_results(synth: SynthSequence, refine: str) -> None:
+@pytest.mark.parametrize("polish", [IcpPolish, KissIcpPolish])
+def test_reset_gives_identical_results(synth: SynthSequence, polish: type) -> None:
     indices = list(range(len(synth)))
-    method = RefinedOdometry(make_method("icp10"), refine)
+    method = Odometry(make_method("icp10"), polish())
     first = run_odometry(synth, method, indices)
     second = run_odometry(synth, method, indices)
     np.testing.assert_allclose(first.poses, second.poses, atol=1e-9)
@@ -67,11 +73,10 @@ def test_reset_gives_identical_results(synth: SynthSequence, refine: str) -> Non
     errors = trajectory_pair_errors(first.poses, gt)
     assert errors.trans_rmse_m < 0.1 and errors.rot_rmse_deg < 0.5
     info = first.per_frame_info[-1]
-    assert {"refine_change_m", "refine_change_deg"} <= set(info)
-    assert first.stage_seconds["method/refine"] > 0.0
+    assert {"polish_change_m", "polish_change_deg", "polish_start"} <= set(info)
 
 
-def test_refine_beats_global_alone_at_stride_5(kitti_sample_root: Path) -> None:
+def test_polish_beats_global_alone_at_stride_5(kitti_sample_root: Path) -> None:
     """8 real frames 5 apart (~4.5 m per pair). Measured (2 CPU cores): FPFH alone ~10-11 cm / 0.33 deg
     RMSE per pair, max ~20 cm; +icp ~4.3 cm / 0.14 deg (max 6 cm); +kiss-icp ~4.4 cm / 0.13 deg (max
     10 cm, the first pair, registered with kiss-icp's initial 2 m threshold against a one-scan map)."""
@@ -81,16 +86,18 @@ def test_refine_beats_global_alone_at_stride_5(kitti_sample_root: Path) -> None:
     indices = list(range(0, 40, 5))
     gt = normalise_to_first(sequence.gt_poses[indices])
     registrar = make_method("fpfh")
-    alone = trajectory_pair_errors(run_odometry(sequence, RefinedOdometry(registrar), indices).poses, gt)
+    alone = trajectory_pair_errors(run_odometry(sequence, Odometry(registrar), indices).poses, gt)
     for refine in ("icp", "kiss-icp"):
-        run = run_odometry(sequence, RefinedOdometry(registrar, refine), indices)
+        polish = IcpPolish() if refine == "icp" else KissIcpPolish()
+        run = run_odometry(sequence, Odometry(registrar, polish), indices)
         errors = trajectory_pair_errors(run.poses, gt)
         assert errors.trans_rmse_m < 0.07, (refine, errors.trans_rmse_m)
         assert errors.rot_rmse_deg < 0.25, (refine, errors.rot_rmse_deg)
         assert errors.trans_errors_m.max() < 0.15, (refine, errors.trans_errors_m.max())
         assert errors.trans_rmse_m < 0.75 * alone.trans_rmse_m, (refine, errors.trans_rmse_m, alone)
         assert errors.rot_rmse_deg < 0.75 * alone.rot_rmse_deg, (refine, errors.rot_rmse_deg, alone)
-        assert all("coarse_fitness" in info for info in run.per_frame_info[1:])
+        expected = {"fitness", "polish_start"} | ({"polish_fitness"} if refine == "icp" else {"kiss_sigma"})
+        assert all(expected <= set(info) for info in run.per_frame_info[1:])
 
 
 def test_kiss_polish_survives_a_float32_guess(synth: SynthSequence) -> None:
@@ -103,7 +110,7 @@ def test_kiss_polish_survives_a_float32_guess(synth: SynthSequence) -> None:
         return RegistrationResult(noisy)
 
     registrar = ScriptedRegistrar(synth.gt_poses, float32_noise)
-    run = run_odometry(synth, RefinedOdometry(registrar, "kiss-icp"), range(4))
+    run = run_odometry(synth, Odometry(registrar, KissIcpPolish()), range(4))
     assert registrar.pair == 3 and len(run.poses) == 4 and np.all(np.isfinite(run.poses))
 
 
@@ -119,10 +126,10 @@ def test_icp_polish_also_starts_from_the_last_motion(synth: SynthSequence) -> No
 
     errors = {}
     for both in (True, False):
-        method = RefinedOdometry(ScriptedRegistrar(poses, wild_third_pair), "icp", also_from_last_motion=both)
+        method = Odometry(ScriptedRegistrar(poses, wild_third_pair), IcpPolish(second_start=both))
         run = run_odometry(synth, method, range(5))
         errors[both] = trajectory_pair_errors(run.poses, poses[:5]).trans_rmse_m
-        starts = [info.get("icp_start") for info in run.per_frame_info]
+        starts = [info.get("polish_start") for info in run.per_frame_info]
         if both:
             assert starts[3] == "last motion"
             assert run_summary(run)["polish_starts"]["last motion"] >= 1  # what metrics.json reports
@@ -131,20 +138,18 @@ def test_icp_polish_also_starts_from_the_last_motion(synth: SynthSequence) -> No
 
 def test_guided_kiss_fed_its_own_prediction_is_kiss_icp() -> None:
     """The learned start only adds: given kiss-icp's own prediction, the poses are kiss-icp's."""
-    from vcr_odom.refine import GuidedKissICP, _kiss_frame
     from vcr_odom.registration.kiss import KissIcpOdometry, kiss_config
 
+    as_input = KissIcpPolish().prepare
     sequence = SynthSequence(frames=8, seed=1)
     reference, guided = KissIcpOdometry(), GuidedKissICP(kiss_config())
     for index in range(len(sequence)):
         frame = sequence.frame(index)
         expected = reference.step(frame)
         if index == 0:
-            guided.seed(_kiss_frame(frame), np.eye(4), np.eye(4))
+            guided.seed(as_input(frame), np.eye(4), np.eye(4))
             continue
-        pose, start = guided.register_frame_with_guess(
-            _kiss_frame(frame), guided.last_pose @ guided.last_delta
-        )
+        pose, start = guided.register_frame_with_guess(as_input(frame), guided.last_pose @ guided.last_delta)
         assert start == "prediction"
         np.testing.assert_allclose(pose, expected, atol=1e-9)
 
@@ -156,17 +161,17 @@ def test_kiss_polish_takes_the_learned_start_where_kiss_icp_loses_track() -> Non
     indices = list(range(0, 17, 4))
     gt = normalise_to_first(sequence.gt_poses[indices])
     alone = trajectory_pair_errors(run_odometry(sequence, make_method("kiss-icp"), indices).poses, gt)
-    run = run_odometry(sequence, RefinedOdometry(ScriptedRegistrar(gt), "kiss-icp"), indices)
+    run = run_odometry(sequence, Odometry(ScriptedRegistrar(gt), KissIcpPolish()), indices)
     guided = trajectory_pair_errors(run.poses, gt)
     assert alone.trans_errors_m.max() > 1.0
     # measured 0.16 m: kiss-icp's own accuracy on sparse synthetic scans
     assert guided.trans_errors_m.max() < 0.25
     assert guided.trans_rmse_m < 0.2 * alone.trans_rmse_m
-    assert run.per_frame_info[1]["kiss_start"] == "global"
+    assert run.per_frame_info[1]["polish_start"] == "global"
     # Without the prediction start the learned guess replaces it on every frame (the issue's first design).
-    alone_guess = RefinedOdometry(ScriptedRegistrar(gt), "kiss-icp", also_from_last_motion=False)
+    alone_guess = Odometry(ScriptedRegistrar(gt), KissIcpPolish(keep_prediction=False))
     replaced = run_odometry(sequence, alone_guess, indices)
-    assert [info["kiss_start"] for info in replaced.per_frame_info[1:]] == ["global"] * (len(indices) - 1)
+    assert [info["polish_start"] for info in replaced.per_frame_info[1:]] == ["global"] * (len(indices) - 1)
     assert trajectory_pair_errors(replaced.poses, gt).trans_errors_m.max() < 0.25
 
 
@@ -174,13 +179,13 @@ def test_chained_poses_stay_rotations_over_a_long_run() -> None:
     """Regression: chaining kiss-icp's map pose as inv(pose) @ map_pose doubled a rotation's rounding
     error every frame (1e-16 -> 12° in 52 KITTI frames). 45 frames would show ~1e-3."""
     sequence = SynthSequence(frames=45, seed=3)
-    method = RefinedOdometry(ScriptedRegistrar(sequence.gt_poses), "kiss-icp")
+    method = Odometry(ScriptedRegistrar(sequence.gt_poses), KissIcpPolish())
     run = run_odometry(sequence, method, range(len(sequence)))
     rotations = run.poses[:, :3, :3]
     identity = np.broadcast_to(np.eye(3), rotations.shape)
     np.testing.assert_allclose(rotations @ rotations.transpose(0, 2, 1), identity, atol=1e-12)
-    assert method._kiss is not None
-    np.testing.assert_allclose(run.poses[-1], method._kiss.last_pose, atol=1e-9)
+    assert isinstance(method.polish, KissIcpPolish)
+    np.testing.assert_allclose(run.poses[-1], method.polish.kiss.last_pose, atol=1e-9)
 
 
 def test_a_wrong_learned_guess_leaves_kiss_icp_unchanged() -> None:
@@ -194,8 +199,8 @@ def test_a_wrong_learned_guess_leaves_kiss_icp_unchanged() -> None:
             motion = make_transform(rotation_from_euler_zyx(np.radians(6.0), 0, 0), [2.0, -2.2, 0]) @ motion
         return RegistrationResult(motion)
 
-    method = RefinedOdometry(ScriptedRegistrar(reference.poses, wrong_fourth_pair), "kiss-icp")
+    method = Odometry(ScriptedRegistrar(reference.poses, wrong_fourth_pair), KissIcpPolish())
     run = run_odometry(sequence, method, range(len(sequence)))
     assert not run.flagged_frames
-    assert [info["kiss_start"] for info in run.per_frame_info[1:]] == ["prediction"] * 7
+    assert [info["polish_start"] for info in run.per_frame_info[1:]] == ["prediction"] * 7
     np.testing.assert_allclose(run.poses, reference.poses, atol=1e-9)

@@ -8,14 +8,13 @@ import numpy as np
 import pytest
 import torch
 
-from vcr_odom.data.synth import SynthSequence
 from vcr_odom.errors import ConfigError
 from vcr_odom.model.config import VcrConfig
 from vcr_odom.model.network import VCRNet
 from vcr_odom.model.weights import save_weights
-from vcr_odom.odometry import run_odometry
-from vcr_odom.refine import RefinedOdometry
+from vcr_odom.odometry import IcpPolish, Odometry, build_odometry, run_odometry
 from vcr_odom.registration.vcr import VcrRegistrar
+from vcr_odom.synth import SynthSequence
 
 SMALL = VcrConfig(
     num_points=128, k=8, point_dim=16, graph_dim=16, spatial_dim=16, feature_dim=32, ff_dim=32, top_j=4
@@ -39,9 +38,9 @@ def test_batched_odometry_equals_one_pair_at_a_time(weights: Path, synth: SynthS
     the network's estimate only: an untrained network's estimate and the last motion can tie on
     fitness, and which start wins a tie is not what this test is about.)"""
 
-    def odometry(batch_size: int) -> RefinedOdometry:
+    def odometry(batch_size: int) -> Odometry:
         registrar = VcrRegistrar(weights, "cpu", batch_size=batch_size)
-        return RefinedOdometry(registrar, refine, also_from_last_motion=False)
+        return Odometry(registrar, IcpPolish(second_start=False) if refine == "icp" else None)
 
     single = run_odometry(synth, odometry(1), range(6))
     method = odometry(4)
@@ -89,9 +88,7 @@ def test_a_degenerate_pair_falls_back_to_the_previous_motion_and_is_flagged(synt
         return RegistrationResult(truth)
 
     poses = synth.gt_poses
-    run = run_odometry(
-        synth, RefinedOdometry(ScriptedRegistrar(poses, degenerate_third_pair), "none"), range(5)
-    )
+    run = run_odometry(synth, Odometry(ScriptedRegistrar(poses, degenerate_third_pair)), range(5))
     assert run.flagged_frames == [3]
     assert run.per_frame_info[3]["reason"] == DEGENERATE
     previous_motion = np.linalg.inv(poses[1]) @ poses[2]
@@ -116,16 +113,21 @@ def test_a_second_pass_registers_the_source_moved_by_the_first(weights: Path) ->
         VcrRegistrar(weights, "cpu", passes=0)
 
 
-def test_a_polished_vcr_runs_one_pass_unless_told(weights: Path) -> None:
-    from vcr_odom.registration import make_polished_method
-    from vcr_odom.registration.vcr import POLISHED_PASSES
+def test_the_factory_decides_the_passes_and_the_polish(weights: Path, tmp_path: Path) -> None:
+    """Legacy xyz weights run two passes alone, one when polished; what the caller says wins."""
+    legacy = SMALL.with_changes(encoder="xyz", distance_bias=False)
+    path = save_weights(tmp_path / "xyz.safetensors", VCRNet(legacy), legacy, {})
 
-    def passes(polished: bool, **options: object) -> int:
-        return make_polished_method("vcr", polished, weights=weights, device="cpu", **options).passes
+    def passes(spec: str, **options: object) -> int:
+        odometry = build_odometry(spec, device="cpu", **options)
+        assert isinstance(odometry, Odometry)
+        return odometry.registrar.passes
 
-    assert SMALL.encoder == "invariant"
-    assert (passes(False), passes(True)) == (1, POLISHED_PASSES) == (1, 1)
-    assert passes(True, passes=3) == 3
+    assert passes("vcr+none", weights=path) == 2
+    assert passes("vcr", weights=path) == passes("vcr+icp", weights=path) == 1
+    assert passes("vcr+icp", weights=path, passes=3) == 3
+    assert passes("vcr+none", weights=weights) == 1  # the invariant encoder: one pass alone too
+    assert build_odometry("vcr", weights=weights, device="cpu").name == "vcr+kiss-icp"
 
 
 def test_legacy_xyz_weights_run_two_passes_unpolished(tmp_path: Path) -> None:

@@ -10,7 +10,7 @@ cloud being updated, keys and values from the other), then a feed-forward block,
 module (same weights) serves both directions.
 
 Deviation: the paper's mask mlp(W_c) maps an N x N matrix, tying the model to one N; we regress the
-weight from each point's features (DESIGN), and use a sigmoid instead of a softmax over points so the
+weight from each point's features, and use a sigmoid instead of a softmax over points so the
 weight does not shrink as 1/N.
 Deviation: both attentions use learned query/key/value projections, several heads and 1/√d scaling
 (scaled_dot_product_attention); the paper's self-attention has no projections and its Π is written with

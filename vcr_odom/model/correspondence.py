@@ -6,9 +6,9 @@ candidates: the J largest A_ij of each key row. Virtual point ŷ_i = Σ_j M_ij y
 
 Deviation: the paper's soft pointer takes M = Softmax(Φ1 Φ2ᵀ) over all N columns and then sums only the
 J candidates (weights that do not sum to 1 pull ŷ towards the origin); we renormalise with a softmax over
-the J candidates (DESIGN), and use one affinity (on Φ) for selection and pointer where the paper uses
+the J candidates, and use one affinity (on Φ) for selection and pointer where the paper uses
 θ1 φ2ᵀ for selection. The temperature is learned and the affinity is a scaled squared distance, never the
-raw one (DESIGN). Key points are ranked by max affinity + log w (the paper: max affinity only), so the
+raw one, so the learned scale sets how peaked the pointer is. Key points are ranked by max affinity + log w (the paper: max affinity only), so the
 self-attention weight removes hard-to-match points as §IV-B intends.
 Deviation: the SVD head accepts optional per-point weights (weighted Kabsch); the paper's E(R, t) is
 unweighted, which is the default. Deviation (``robust_iterations`` > 0): the paper's solve is followed

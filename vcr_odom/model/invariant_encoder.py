@@ -2,8 +2,8 @@
 turned about z (the paper, §IV-A and Algorithm 1, asks for rotation- and shift-invariant features).
 
 Why: the first layer of :class:`~vcr_odom.model.encoder.LpdEncoder` is a pointwise MLP on absolute xyz,
-so a point's feature says where it lies in the sensor frame (shifting a KITTI scan by 5 m changed its
-features by ~12 %). Between two sensor positions such a feature favours matching a point to whatever
+so a point's feature says where it lies in the sensor frame (the model card gives how much a shift
+changes it). Between two sensor positions such a feature favours matching a point to whatever
 lies at the same sensor-frame place: an estimate shrunk towards zero motion, the more so the larger
 the motion. Here every input is a function of differences between points, and of the z axis only
 through heights and the tilt of local shapes, so the invariance holds to float rounding (tested).

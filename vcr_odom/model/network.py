@@ -1,5 +1,5 @@
 """VCR-Net (paper Fig. 3): revised LPD-Net -> self-attention -> cross-attention -> virtual corresponding
-points -> SVD, returning T_target_source (DESIGN's convention: maps source points into the target frame).
+points -> SVD, returning T_target_source (it maps source points into the target frame).
 
 ``forward`` = :meth:`VCRNet.encode` on each cloud + :meth:`VCRNet.register_features`, so odometry can
 encode every frame once and reuse its features for the pair before and the pair after it.

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -23,7 +24,8 @@ from vcr_odom.model.config import PRESETS, VcrConfig
 from vcr_odom.model.network import VCRNet
 
 FORMAT = "vcr-odom-weights/1"
-WEIGHTS_DIR = Path(__file__).resolve().parents[2] / "weights"
+WEIGHTS_DIR = Path(str(resources.files("vcr_odom.weights")))
+"""The shipped weights: the repository's ``weights/`` folder, installed as the package ``vcr_odom.weights``."""
 
 
 def default_weights_path(preset: str = "default", must_exist: bool = True) -> Path:

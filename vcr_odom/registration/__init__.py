@@ -75,17 +75,6 @@ def make_method(name: str, **options: Any) -> Registrar | SequentialOdometry:
     return cls(**{**defaults, **options})
 
 
-def make_polished_method(name: str, polished: bool, **options: Any) -> Registrar | SequentialOdometry:
-    """:func:`make_method` for a method whose estimate a local polish may refine: polished, VCR-Net
-    runs one network pass unless ``passes`` is given (the polish refines the residual that a second
-    pass would; see :data:`vcr_odom.registration.vcr.DEFAULT_PASSES`)."""
-    if polished and name.strip().lower() == "vcr" and "passes" not in options:
-        from vcr_odom.registration.vcr import POLISHED_PASSES
-
-        options = {**options, "passes": POLISHED_PASSES}
-    return make_method(name, **options)
-
-
 __all__ = [
     "METHOD_NAMES",
     "Registrar",
@@ -93,5 +82,4 @@ __all__ = [
     "SequentialOdometry",
     "identity_guess",
     "make_method",
-    "make_polished_method",
 ]

@@ -9,12 +9,13 @@ from dataclasses import dataclass
 
 import numpy as np
 import open3d as o3d
+from pydantic import Field
 
 from vcr_odom.data.base import Points
-from vcr_odom.errors import ConfigError
 from vcr_odom.geometry import Transform
 from vcr_odom.registration.base import RegistrationResult
 from vcr_odom.registration.open3d_icp import prepare_cloud, too_few_points
+from vcr_odom.settings import Settings
 
 
 @dataclass
@@ -25,45 +26,32 @@ class FpfhPrepared:
     features: o3d.pipelines.registration.Feature
 
 
-@dataclass
-class FpfhRansac:
+class FpfhRansac(Settings):
     """FPFH + RANSAC (open3d), deterministic for ``seed``; ``initial_guess`` is ignored.
 
-    Defaults, tuned on the real KITTI sample (consecutive pairs, 5-frame pairs, a 25°/3 m transform):
-    ``voxel_size=0.5`` m (1.0 m halves the time but errors grow to ~0.5-1 m / ~1°);
-    normals over ``2 * voxel`` and FPFH over ``5 * voxel`` (2.5 m, max 100 neighbours: the usual
-    open3d choice, large enough to see a car or a facade corner); ``inlier_distance`` ``0.5 * voxel``
-    (0.25 m): hypotheses are scored by inlier count, and a looser 1.5 * voxel lets many slightly-off
-    hypotheses tie, measured 2-3x worse (10-30 cm); mutual filter on and an edge-length checker
-    (0.9) to reject inconsistent triplets early; 100k iterations at confidence 0.999;
-    ``max_range=60`` m, since sparse far rings give noisy normals and descriptors.
-    A polish is not built in: ``fpfh+icp`` / ``fpfh+kiss-icp`` (:mod:`vcr_odom.refine`) polish any
-    global method the same way.
-    Measured on the real KITTI sample (2 shared CPU cores): ~0.15-0.2 s per frame to prepare plus
-    ~0.4-0.8 s of RANSAC per pair; consecutive pairs 10.6 cm / 0.28° RMSE, 5-frame pairs 9.3 cm /
-    0.36° (no refinement).
+    Why these defaults (README "Baselines" has the figures): ``voxel_size=0.5`` m, since coarser
+    grids lose accuracy faster than they save time; normals over two voxels and FPFH over five
+    (large enough to see a car or a facade corner, the usual open3d choice); ``inlier_distance`` half
+    a voxel, because hypotheses are scored by inlier count and a looser gate lets many slightly-off
+    hypotheses tie; mutual filter and an edge-length checker reject inconsistent triplets early;
+    ``max_range=60`` m, since sparse far rings give noisy normals and descriptors. No polish is built
+    in: ``fpfh+icp`` and ``fpfh+kiss-icp`` polish it as they polish any global method.
     """
 
-    voxel_size: float = 0.5
-    feature_radius_factor: float = 5.0
-    normal_radius_factor: float = 2.0
-    feature_max_nn: int = 100
-    inlier_distance_factor: float = 0.5
-    edge_length_ratio: float = 0.9
+    voxel_size: float = Field(default=0.5, gt=0)
+    feature_radius_factor: float = Field(default=5.0, gt=0)
+    normal_radius_factor: float = Field(default=2.0, gt=0)
+    feature_max_nn: int = Field(default=100, ge=1)
+    inlier_distance_factor: float = Field(default=0.5, gt=0)
+    edge_length_ratio: float = Field(default=0.9, gt=0, lt=1)
     mutual_filter: bool = True
-    max_iterations: int = 100_000
-    confidence: float = 0.999
-    min_range: float = 2.0
-    max_range: float = 60.0
+    max_iterations: int = Field(default=100_000, ge=1)
+    confidence: float = Field(default=0.999, gt=0, lt=1)
+    min_range: float = Field(default=2.0, ge=0)
+    max_range: float = Field(default=60.0, gt=0)
     seed: int = 0
     name: str = "fpfh"
     needs_initial_guess: bool = False
-
-    def __post_init__(self) -> None:
-        if self.voxel_size <= 0 or self.inlier_distance_factor <= 0 or self.max_iterations < 1:
-            raise ConfigError("need voxel_size > 0, inlier_distance_factor > 0 and max_iterations >= 1")
-        if not 0.0 < self.confidence < 1.0:
-            raise ConfigError(f"confidence must be in (0, 1); got {self.confidence}")
 
     def prepare(self, points: Points) -> FpfhPrepared:
         cloud = prepare_cloud(points, self.min_range, self.max_range, self.voxel_size, normals=False)

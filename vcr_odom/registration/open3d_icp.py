@@ -7,18 +7,19 @@ wrong when the motion exceeds its correspondence distance. "ICP(10)" of the pape
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 import open3d as o3d
+from pydantic import Field, model_validator
 
 from vcr_odom.data.base import Points
-from vcr_odom.errors import ConfigError, DataWarning
+from vcr_odom.errors import DataWarning
 from vcr_odom.geometry import Transform
 from vcr_odom.preprocess import crop_range
 from vcr_odom.registration.base import TOO_FEW_POINTS, RegistrationResult, identity_guess
+from vcr_odom.settings import Settings
 
-ICP_VARIANTS = ("point_to_plane", "point_to_point")
 _MIN_POINTS = 10  # fewer than this and a 6-DoF least-squares fit is meaningless
 
 
@@ -54,47 +55,36 @@ def too_few_points(
     return RegistrationResult(guess, fitness=0.0, info={"status": TOO_FEW_POINTS, "points": counts})
 
 
-@dataclass
-class Open3dIcp:
+class Open3dIcp(Settings):
     """open3d ``registration_icp`` on voxel-down-sampled frames.
 
-    Defaults, measured on the real KITTI sample (59 consecutive pairs, frames 0-59):
-    ``voxel_size=0.5`` m (1.0 m costs 2-5 cm of accuracy, 0.3 m doubles the time for no gain);
-    ``max_correspondence_distance=1.0`` m (covers KITTI's <= 1 m inter-frame motion from identity;
-    2 m was slightly worse on 3 of 4 sampled pairs); ``max_iterations=100`` with relative
-    fitness/RMSE 1e-6 is "converged", 10 is the paper's ICP(10) (point-to-plane converges within
-    10 here: both give 2.3 cm / 0.075° RMSE per pair, ~50 ms/pair with preparation).
-    Point-to-point is markedly worse on real scans (~8-10 cm RMSE): ring patterns on the road drag it.
-    Ranges as in pre-processing (2-80 m: no ego-car returns, no sparse far field).
-    ``normals_max_nn=10``: at 0.5 m voxels the 2-voxel ball holds few more than 10 points; against 30,
-    the VCR + ICP odometry on kitti-sample at strides 1, 5 and 10 kept its per-pair RMSE (within
-    0.007°, 1 mm) and end-point drift (within 0.03 %), and normals cost ~6 ms less per frame.
+    Why these defaults (README "Baselines" has the figures): ``voxel_size=0.5`` m keeps the accuracy
+    of finer grids at a fraction of the points; ``max_correspondence_distance=1.0`` m covers a car's
+    motion between two 10 Hz scans from the identity; 100 iterations with relative fitness/RMSE 1e-6
+    is "converged", 10 is the paper's ICP(10). Point-to-point is worse on real scans, where the ring
+    pattern on the road drags it. Ranges as in pre-processing (no ego-car returns, no sparse far
+    field). ``normals_max_nn=10``: at 0.5 m voxels the two-voxel ball holds few more points, so more
+    neighbours cost time without changing a normal. ``name``: derived from the variant when empty.
     """
 
-    variant: str = "point_to_plane"
-    max_iterations: int = 100
-    relative_fitness: float = 1e-6
-    relative_rmse: float = 1e-6
-    voxel_size: float = 0.5
-    max_correspondence_distance: float = 1.0
-    min_range: float = 2.0
-    max_range: float = 80.0
-    normals_max_nn: int = 10
+    variant: Literal["point_to_plane", "point_to_point"] = "point_to_plane"
+    max_iterations: int = Field(default=100, ge=1)
+    relative_fitness: float = Field(default=1e-6, ge=0)
+    relative_rmse: float = Field(default=1e-6, ge=0)
+    voxel_size: float = Field(default=0.5, gt=0)
+    max_correspondence_distance: float = Field(default=1.0, gt=0)
+    min_range: float = Field(default=2.0, ge=0)
+    max_range: float = Field(default=80.0, gt=0)
+    normals_max_nn: int = Field(default=10, ge=3, description="a plane needs 3 points")
     name: str = ""
     needs_initial_guess: bool = True
 
-    def __post_init__(self) -> None:
-        if self.variant not in ICP_VARIANTS:
-            raise ConfigError(f"variant must be one of {', '.join(ICP_VARIANTS)}; got {self.variant!r}")
-        if self.max_iterations < 1 or self.voxel_size <= 0 or self.max_correspondence_distance <= 0:
-            raise ConfigError("need max_iterations >= 1, voxel_size > 0 and max_correspondence_distance > 0")
-        if self.normals_max_nn < 3:
-            raise ConfigError(
-                f"normals_max_nn must be >= 3 (a plane needs 3 points); got {self.normals_max_nn}"
-            )
+    @model_validator(mode="after")
+    def _name_from_variant(self) -> Open3dIcp:
         if not self.name:
             short = "p2l" if self.variant == "point_to_plane" else "p2p"
-            self.name = f"icp-{short}({self.max_iterations})"
+            object.__setattr__(self, "name", f"icp-{short}({self.max_iterations})")
+        return self
 
     def prepare(self, points: Points) -> o3d.geometry.PointCloud:
         normals = self.variant == "point_to_plane"

@@ -28,23 +28,15 @@ GPU_BATCH_SIZE = 16
 """Pairs per network call on CUDA (``batch_size=None``); 1 on the CPU."""
 
 DEFAULT_PASSES = 2
-"""Network passes per pair when nothing polishes the estimate, for weights with the legacy ``xyz``
-encoder (weights with the invariant encoder run one: see :func:`default_passes`). The second pass
-registers the source moved by the first estimate, i.e. a residual of a few decimetres, where the network is most accurate.
-On the paper's protocol (kitti-sample, 512 points; ``benchmarks/pair_tables.py``) translation RMSE
-falls from 0.37 to 0.16 m on frames 0-39 (where two was chosen; a third pass changed it by < 0.01 m
-in a one-off check) and from 0.31 to 0.11 m on the test frames 40-59, every pair then within
-2 deg / 0.5 m (weights/MODEL_CARD.md). Between two different scans (consecutive frames) it neither
-helps nor hurts (0.29 vs 0.28 m on frames 0-39), nor metres apart: what is left there is a bias of
-the network, not a residual."""
-
-POLISHED_PASSES = 1
-"""Passes when ICP or kiss-icp polishes the estimate: the polish refines the residual anyway, and the
-second pass would cost a re-encoding and a registration (~20 ms per frame on 2 CPU cores)."""
+"""Network passes per pair for weights with the legacy ``xyz`` encoder (the invariant encoder runs one:
+see :func:`default_passes`). The second pass registers the source moved by the first estimate, a
+residual of a few decimetres, where a position-dependent encoder is most accurate; the model card
+gives the figures."""
 
 MIN_CORRESPONDENCE_SPREAD = 0.01
 """Below this :func:`correspondence_spread` the estimate is reported as ``status: degenerate
-correspondences`` (a street scan's virtual points span tens of metres in two directions: ~0.2-0.6)."""
+correspondences``: a street scan's virtual points span tens of metres in two directions, so a spread
+this small means they collapsed onto a line, where the rotation about it is undetermined."""
 
 
 @dataclass

@@ -1,7 +1,7 @@
 """The paper's Table III protocol: pairwise registration of one scan against a randomly moved copy.
 
 Why a separate benchmark: odometry pairs move < 1 m between frames, where ICP from identity works;
-the paper's same-scan protocol (:mod:`vcr_odom.data.pairs`, ``protocol="same-scan"``) moves the
+the paper's same-scan protocol (:mod:`vcr_odom.training.pairs`, ``protocol="same-scan"``) moves the
 second down-sampled copy by yaw ±30°, roll/pitch ±5°, ±5 m horizontally and ±1 m vertically, which
 is what a global method (FPFH+RANSAC, VCR-Net) must survive and local ICP cannot.
 
@@ -35,14 +35,14 @@ from vcr_odom.metrics import PairErrors, pair_errors
 
 if TYPE_CHECKING:
     from vcr_odom.data.base import LidarSequence
-    from vcr_odom.data.pairs import PairDataset
     from vcr_odom.registration.base import Registrar
+    from vcr_odom.training.datasets import PairDataset
 
 INITIAL_GUESSES = ("identity", "ground-truth")
 SEQUENTIAL_METHODS = ("kiss-icp",)
 DEFAULT_PAIR_METHODS = ("icp10", "fpfh", "vcr", "vcr+icp")
 """The paper's Table III rows; ``NAME+icp`` is NAME polished by ICP on the pair's own clouds
-(:mod:`vcr_odom.registration.polish`)."""
+(:mod:`vcr_odom.evaluation.pairs_polish`)."""
 
 Pair = Mapping[str, Any]
 """One pair: ``source`` / ``target`` ``(N, >=3)`` points and ``transform`` = ``T_target_source``."""
@@ -109,8 +109,9 @@ def pair_sets(
 
     Consecutive pairs need the sequence's ground-truth poses and are one fewer than the frames; with
     frames ``a, a+s, a+2s, ...`` they are ``s`` frames apart."""
-    from vcr_odom.data.pairs import PairConfig, PairDataset, build_frame_cache
+    from vcr_odom.data.frame_cache import build_frame_cache
     from vcr_odom.preprocess import PreprocessConfig
+    from vcr_odom.training import PairConfig, PairDataset
 
     unknown = sorted(set(kinds) - set(PAIR_KINDS))
     if unknown or not kinds:
@@ -167,8 +168,9 @@ def _materialise(dataset_or_pairs: PairDataset | Iterable[Pair]) -> list[dict[st
 
 
 def _build(name: str, options: Mapping[str, Mapping[str, Any]]) -> Registrar:
-    from vcr_odom.registration import make_polished_method
-    from vcr_odom.registration.polish import polished_for_pairs
+    from vcr_odom.evaluation.pairs_polish import polished_for_pairs
+    from vcr_odom.odometry.factory import registrar_options
+    from vcr_odom.registration import make_method
 
     key = name.strip().lower()
     base, _, polish = key.partition("+")
@@ -179,7 +181,8 @@ def _build(name: str, options: Mapping[str, Mapping[str, Any]]) -> Registrar:
             "comparison instead"
         )
     polished = bool(polish) and polish != "none"
-    method = make_polished_method(base, polished, **dict(options.get(base, options.get(name, {}))))
+    given = dict(options.get(base, options.get(name, {})))
+    method = make_method(base, **registrar_options(base, polished, given))
     if polished:
         return polished_for_pairs(method, polish)  # type: ignore[arg-type]
     return method  # type: ignore[return-value]

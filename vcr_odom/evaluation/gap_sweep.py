@@ -4,7 +4,7 @@ Why: odometry meets consecutive frames (< 1 m apart); a global method that only 
 systematically under-estimates the motion (a learned network regressing towards its training
 motions), shows it once the gap between the frames grows. For each gap ``d`` every pair
 ``(i, i + d)`` of the selected frames is registered, source = the later frame ``i + d``, target = the
-earlier frame ``i`` (DESIGN's odometry convention), against the ground truth
+earlier frame ``i`` (the odometry convention: ``T_target_source``), against the ground truth
 ``T_i_(i+d) = inv(P_i) @ P_(i+d)`` of the sequence's LiDAR-frame poses.
 
 Methods receive the raw frames, as ``run`` hands them over: each does its own pre-processing in
@@ -30,8 +30,8 @@ from vcr_odom.metrics import PairErrors, pair_errors
 
 if TYPE_CHECKING:
     from vcr_odom.data.base import LidarSequence
-    from vcr_odom.data.synth import SynthSequence
     from vcr_odom.registration.base import Registrar
+    from vcr_odom.synth import SynthSequence
 
 DEFAULT_GAPS = (1, 2, 5, 10, 15)
 RATIO_MIN_MOTION_M = 0.2
@@ -315,6 +315,6 @@ def synth_sequence(
     seed: int, frames: int, speed: float, sensor: str | None = None, scene: str = "suburban"
 ) -> SynthSequence:
     """A synthetic drive; ``sensor`` names a :meth:`SensorConfig.model` (None: the default HDL-64E)."""
-    from vcr_odom.data.synth import SynthSequence
+    from vcr_odom.synth import SynthSequence
 
     return SynthSequence(frames=frames, seed=seed, speed=speed, sensor=sensor, scene=scene)

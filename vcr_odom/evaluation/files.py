@@ -9,11 +9,13 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from vcr_odom.data.selection import select_frames
 from vcr_odom.errors import DataError
 from vcr_odom.geometry import camera_to_lidar_poses, normalise_to_first
 from vcr_odom.io import read_kitti_calib, read_kitti_poses
 from vcr_odom.metrics import AteAlignment, EvaluationReport, evaluate
-from vcr_odom.odometry import select_frames
+from vcr_odom.plots import plot_pair_errors, plot_trajectories
+from vcr_odom.results import write_json
 
 
 @dataclass
@@ -83,3 +85,20 @@ def _frame_indices(
         notes.append(f"frames taken from {sidecar} ({len(indices)} frames)")
         return indices
     return list(range(gt_length))
+
+
+def write_evaluation(
+    evaluation: FileEvaluation, label: str, *, json_path: Path | None = None, plot_path: Path | None = None
+) -> list[Path]:
+    """Every figure (per-pair errors included) as JSON, and a trajectory plot with a per-pair error
+    plot beside it; returns the files written."""
+    written: list[Path] = []
+    if json_path is not None:
+        written.append(write_json(json_path, evaluation.report.to_dict(include_arrays=True)))
+    if plot_path is not None:
+        plot_trajectories(plot_path, {label: evaluation.est}, evaluation.gt, title=label)
+        errors_path = plot_path.with_name(plot_path.stem + "_pair_errors.png")
+        pairs = evaluation.report.pairs
+        plot_pair_errors(errors_path, {label: pairs.rot_errors_deg}, {label: pairs.trans_errors_m})
+        written += [plot_path, errors_path]
+    return written

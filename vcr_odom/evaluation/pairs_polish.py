@@ -1,47 +1,37 @@
 """A global registrar polished by ICP on the very clouds it was given: the pairs protocol's ``NAME+icp``.
 
-Why not :mod:`vcr_odom.refine`: odometry polishes on the full frames (ground kept, 0.5 m voxels,
-point-to-plane), but a pair of the paper's protocol is only two N-point clouds, a few metres apart
-point to point, where normals are meaningless. Measured on kitti-sample frames 40-59 (N=512, start
-within 1°/0.25 m of the truth, FPS over all points as pre-processing then did): point-to-point ICP
-with a 0.5 m gate reached 0.022°/1.6 cm, point-to-plane (3 m normals) 0.025°/2.1 cm at 3x the time, a
-2 m gate alone 0.053°/3.6 cm. A 0.5 m gate alone does not reach a start more than ~0.5 m off, hence
-the coarse-to-fine gates. With FPS from a 16k-point subset (the pre-processing now) the two clouds
-share fewer points; a last 0.25 m gate then matters. Measured on frames 0-39 (not the test block),
-from VCR-Net's two-pass estimate: gates (2, 1, 0.5) m gave 0.078°/3.3 cm on same-scan pairs and
-0.116°/5.1 cm on consecutive pairs; (2, 1, 0.5, 0.25) m gave 0.036°/1.8 cm and 0.133°/4.0 cm;
-generalized ICP and point-to-plane (3-5 m normals) were worse on both.
+Why not the odometry polish (:mod:`vcr_odom.odometry.polish`): odometry polishes full frames (ground
+kept, 0.5 m voxels, point-to-plane), but a pair of the paper's protocol is only two N-point clouds,
+metres apart point to point, where normals are meaningless. Point-to-point ICP with shrinking
+correspondence gates reaches a start that is decimetres off and still ends as tight as the clouds'
+sampling allows; the gates were chosen on kitti-sample frames 0-39 (the model card has the figures).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import open3d as o3d
+from pydantic import Field, PositiveFloat
 
 from vcr_odom.data.base import Points
 from vcr_odom.errors import ConfigError
 from vcr_odom.geometry import Transform
 from vcr_odom.registration.base import Registrar, RegistrationResult, identity_guess
+from vcr_odom.settings import Settings
 
 PAIR_POLISHES = ("icp",)
 """Polishes that make sense on an isolated pair (kiss-icp's needs the local map of a sequence)."""
 
 
-@dataclass
-class SparseIcp:
+class SparseIcp(Settings):
     """Point-to-point ICP on the clouds as given (no voxel grid: they are already sparse)."""
 
-    distances: tuple[float, ...] = (2.0, 1.0, 0.5, 0.25)
-    max_iterations: int = 30
+    distances: tuple[PositiveFloat, ...] = Field(default=(2.0, 1.0, 0.5, 0.25), min_length=1)
+    max_iterations: int = Field(default=30, ge=1)
     name: str = "sparse-icp"
     needs_initial_guess: bool = True
-
-    def __post_init__(self) -> None:
-        if not self.distances or any(d <= 0 for d in self.distances) or self.max_iterations < 1:
-            raise ConfigError("SparseIcp needs positive correspondence distances and max_iterations >= 1")
 
     def prepare(self, points: Points) -> o3d.geometry.PointCloud:
         xyz = np.asarray(points, dtype=np.float64)[:, :3]

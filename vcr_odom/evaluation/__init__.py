@@ -1,0 +1,1 @@
+"""Scoring: trajectory files against ground truth, the pairs protocol, the gap sweep, comparisons."""
