@@ -25,8 +25,7 @@ from vcr_odom.training import (
     TrainConfig,
     TrainingData,
     cache_sequence,
-    pretrain_on,
-    train_on,
+    fit_on,
 )
 
 F = TypeVar("F", bound=Callable[..., Any])
@@ -95,21 +94,22 @@ def cache(preset: str, out: Path, **options: Any) -> None:
 @config_options(TrainConfig, ("init_weights",), NAMES, EXTRA)
 def train_command(**options: Any) -> None:
     """Train VCR-Net (correspondence loss; model chosen on the validation frames, never on test)."""
-    _run(train_on, options)
+    _run("train", options)
 
 
 @click.command("pretrain")
 @_training_options
 def pretrain_command(**options: Any) -> None:
     """Self-supervised pre-training of the encoder with the triplet loss (the paper's Algorithm 1)."""
-    _run(pretrain_on, options)
+    _run("pretrain", options)
 
 
-def _run(command: Callable[..., Any], options: dict[str, Any]) -> None:
+def _run(task: str, options: dict[str, Any]) -> None:
     data = _settings(TrainingData, options, SOURCE + DATA)
     config = _settings(TrainConfig, options, (*TRAINING, "select_on", "init_weights"))
     with _progress(" + ".join(data.protocols)) as (frames, events):
-        result = command(
+        result = fit_on(
+            task,
             data,
             VcrConfig.preset(options["preset"]),
             config,

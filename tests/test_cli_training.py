@@ -77,7 +77,10 @@ def test_cache_train_resume_and_run_with_the_trained_weights(synthetic_root, tmp
         tmp_path / "compare",
     )
     assert "none (global)" in output  # vcr needs no initial guess, and the table says so
-    assert set(json.loads((tmp_path / "compare" / "latest" / "compare.json").read_text())) == {"vcr", "icp10"}
+    assert set(json.loads((tmp_path / "compare" / "latest" / "compare.json").read_text())) == {
+        "vcr+none",
+        "icp10",
+    }
 
 
 def test_vcr_without_weights_names_the_missing_file(synthetic_root, tmp_path, monkeypatch):

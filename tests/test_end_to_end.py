@@ -247,6 +247,36 @@ def test_demo_runs_vcr_with_the_shipped_weights(tmp_path):
     assert report["vcr+kiss-icp"]["pairs"]["success_rate"] > 0.9
     # The network alone, with nothing to rescue it (the polishes also start from the motion prior):
     # a broken network fails here even where the polished rows pass.
-    alone = report["vcr"]["pairs"]
-    assert report["vcr"]["run"]["flagged_frames"] == []
+    alone = report["vcr+none"]["pairs"]
+    assert report["vcr+none"]["run"]["flagged_frames"] == []
     assert alone["success_rate"] == 1.0 and alone["trans_rmse_m"] < 0.15 and alone["rot_rmse_deg"] < 0.5
+
+
+@pytest.mark.parametrize("method", ["vcr", "icp10", "kiss-icp"])
+def test_build_odometry_is_what_run_runs(synthetic_root, tmp_path, method):
+    """`run --method NAME` and `build_odometry(NAME)` in Python: the same method (its default polish and
+    pass count included), hence the same trajectory."""
+    from vcr_odom.data.selection import FrameSelection
+    from vcr_odom.geometry import lidar_to_camera_poses
+    from vcr_odom.odometry import build_odometry, run_odometry
+
+    invoke(
+        "run",
+        "--data-root",
+        str(synthetic_root),
+        "--method",
+        method,
+        "--frames",
+        ":6",
+        "--results-dir",
+        str(tmp_path),
+    )
+    written = read_kitti_poses((tmp_path / "latest").resolve() / "trajectory_kitti.txt")
+    sequence = FrameSelection(data_root=synthetic_root, frames=":6").open()
+    odometry = build_odometry(method)
+    run = run_odometry(sequence, odometry, range(6))
+    assert (
+        odometry.name
+        == json.loads(((tmp_path / "latest").resolve() / "metrics.json").read_text())["run"]["method"]
+    )
+    np.testing.assert_allclose(lidar_to_camera_poses(run.poses, sequence.tr_velo_to_cam), written, atol=1e-6)

@@ -37,3 +37,33 @@ def test_the_wheel_carries_the_shipped_weights_and_the_cli(tmp_path: Path) -> No
     assert "vcr_odom/weights/MODEL_CARD.md" in names
     assert "vcr_odom/cli/main.py" in names
     assert not any(name.startswith(("cli/", "weights/", "tests/")) for name in names)
+
+
+def test_the_library_never_imports_the_cli_or_the_benchmarks():
+    """The CLI and benchmarks sit on top of the library; an import the other way would tie a notebook
+    user to click and to harness code."""
+    import ast
+
+    offenders = []
+    for path in (ROOT / "vcr_odom").rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else []
+            if isinstance(node, ast.ImportFrom) and node.module:
+                names = [node.module]
+            offenders += [
+                f"{path.relative_to(ROOT)}: {n}"
+                for n in names
+                if n.startswith(("vcr_odom.cli", "benchmarks", "cli"))
+            ]
+    assert offenders == []
+
+
+def test_modules_stay_small():
+    sizes = {
+        p.relative_to(ROOT).as_posix(): len(p.read_text().splitlines())
+        for p in (ROOT / "vcr_odom").rglob("*.py")
+    }
+    sizes |= {
+        p.relative_to(ROOT).as_posix(): len(p.read_text().splitlines()) for p in (ROOT / "cli").rglob("*.py")
+    }
+    assert {path: lines for path, lines in sizes.items() if lines > 500} == {}

@@ -19,7 +19,7 @@ from vcr_odom.errors import ConfigError
 from vcr_odom.geometry import make_transform, normalise_to_first, rotation_from_euler_zyx
 from vcr_odom.metrics import trajectory_pair_errors
 from vcr_odom.odometry import IcpPolish, InitialGuess, KissIcpPolish, Odometry, run_odometry
-from vcr_odom.odometry.factory import build_odometry
+from vcr_odom.odometry.factory import build_odometry, canonical_spec, parse_method_spec
 from vcr_odom.odometry.guided_kiss import GuidedKissICP
 from vcr_odom.odometry.outputs import run_summary
 from vcr_odom.odometry.polish import POLISHES
@@ -41,7 +41,7 @@ def test_bad_polish_name_lists_the_choices() -> None:
 
 
 def test_names_and_protocol() -> None:
-    assert build_odometry("fpfh+none").name == "fpfh"
+    assert build_odometry("fpfh+none").name == "fpfh+none"  # not "fpfh": that spec means polished
     assert build_odometry("fpfh+ICP").name == "fpfh+icp"
     method = build_odometry("fpfh")  # a global method's default polish
     assert method.name == "fpfh+kiss-icp"
@@ -49,6 +49,17 @@ def test_names_and_protocol() -> None:
     assert build_odometry("icp10").name == "icp10"  # a local method gets none
     with pytest.raises(ConfigError, match="kiss-icp is a sequential odometry"):
         build_odometry("kiss-icp+icp")
+
+
+@pytest.mark.parametrize(
+    "spec", ["vcr", "vcr+none", "VCR+icp", "fpfh", "fpfh+none", "icp10", "icp10+icp", "kiss-icp"]
+)
+def test_a_canonical_spec_names_the_same_method_again(spec: str) -> None:
+    """Tables and folders are labelled with the canonical spec; reading a label back must not change
+    the method (a bare global name means its default polish, so the network alone stays ``+none``)."""
+    canonical = canonical_spec(spec)
+    assert parse_method_spec(canonical) == parse_method_spec(spec)
+    assert canonical_spec(canonical) == canonical
 
 
 def test_identity_start_differs_from_constant_velocity_only_in_the_guess(synth: SynthSequence) -> None:

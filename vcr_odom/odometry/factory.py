@@ -45,9 +45,13 @@ def parse_method_spec(spec: str) -> tuple[str, str]:
 
 
 def canonical_spec(spec: str) -> str:
-    """The spec with its polish spelled out (``vcr`` -> ``vcr+kiss-icp``, ``vcr+none`` -> ``vcr``)."""
+    """The spec as tables and folders name it, one spelling per method: a global method's polish is
+    always written out (``vcr`` -> ``vcr+kiss-icp``, ``vcr+none`` stays), a local method's only when
+    it has one (``icp10``, ``icp10+icp``). Parsing it again gives the same method."""
     name, polish = parse_method_spec(spec)
-    return name if polish == "none" else f"{name}+{polish}"
+    if polish == "none" and name not in GLOBAL_METHODS:
+        return name
+    return f"{name}+{polish}"
 
 
 def registrar_options(name: str, polished: bool, options: dict[str, Any]) -> dict[str, Any]:
@@ -76,7 +80,9 @@ def build_odometry(
     method = make_method(name, **registrar_options(name, polish_name != "none", method_options))
     if isinstance(method, Registrar):
         polish = make_polish(polish_name, **(polish_options or {}))
-        return Odometry(method, polish, initial_guess=InitialGuess(initial_guess), limits=limits)
+        odometry = Odometry(method, polish, initial_guess=InitialGuess(initial_guess), limits=limits)
+        odometry.name = canonical_spec(spec)
+        return odometry
     if polish_options:
         raise ConfigError(f"{name} takes no polish options")
     return method

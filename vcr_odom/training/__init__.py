@@ -7,7 +7,7 @@
 - :class:`PairConfig` and :class:`PairDataset` (:mod:`~vcr_odom.training.pairs`,
   :mod:`~vcr_odom.training.datasets`) draw the pairs from frame caches
   (:mod:`vcr_odom.data.frame_cache`).
-- :func:`cache_sequence`, :func:`train_on` and :func:`pretrain_on` (:mod:`~vcr_odom.training.commands`)
+- :func:`cache_sequence`, :func:`fit_on` (:mod:`~vcr_odom.training.commands`)
   are the ``cache``, ``train`` and ``pretrain`` commands, from sequences and caches to weights.
 
 The pair contract: items are dicts with ``source`` and ``target`` ``(N, 3)`` float32, ``transform``
@@ -25,9 +25,8 @@ from vcr_odom.training.commands import (
     FramesProgress,
     TrainingData,
     cache_sequence,
-    pretrain_on,
+    fit_on,
     sequence_caches,
-    train_on,
     training_sets,
 )
 from vcr_odom.training.config import Progress, ProgressEvent, TrainConfig, TrainResult
@@ -59,19 +58,18 @@ __all__ = [
     "TrainResult",
     "TrainingData",
     "cache_sequence",
+    "fit_on",
     "pair_indices",
     "pairs_within",
     "parameter_groups",
     "pose_errors",
     "pretrain",
-    "pretrain_on",
     "random_rigid_transform",
     "resolve_device",
     "seed_everything",
     "sequence_caches",
     "split_frames",
     "train",
-    "train_on",
     "train_val_datasets",
     "training_sets",
 ]

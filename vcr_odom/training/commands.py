@@ -5,10 +5,10 @@ only numpy and torch, so caches built on one machine can train on another that h
 takes its frames from caches, from sequences pre-processed on the spot, or both (:class:`TrainingData`).
 
     from vcr_odom.model.config import VcrConfig
-    from vcr_odom.training import TrainConfig, TrainingData, train_on
+    from vcr_odom.training import TrainConfig, TrainingData, fit_on
 
     data = TrainingData(caches=["s00.npz"], protocols=["odometry", "same-scan"], max_motion=15.0)
-    result = train_on(data, VcrConfig.preset("default"), TrainConfig(epochs=8, out="runs/mine"))
+    result = fit_on("train", data, VcrConfig.preset("default"), TrainConfig(epochs=8, out="runs/mine"))
 """
 
 from __future__ import annotations
@@ -152,7 +152,12 @@ def training_sets(
     return train_val_datasets(caches, pairs, data.val_fraction)
 
 
-def train_on(
+TRAINING_TASKS = {"train": train, "pretrain": pretrain}
+"""``train``: the correspondence loss (the network); ``pretrain``: the triplet loss (the encoder)."""
+
+
+def fit_on(
+    task: str,
     data: TrainingData,
     model_config: VcrConfig,
     config: TrainConfig,
@@ -160,19 +165,8 @@ def train_on(
     progress: Progress | None = None,
     frames_progress: FramesProgress | None = None,
 ) -> TrainResult:
-    """The ``train`` command: :func:`~vcr_odom.training.loop.train` on the pairs of ``data``."""
+    """The ``train`` and ``pretrain`` commands: that task's loop on the pairs of ``data``."""
+    if task not in TRAINING_TASKS:
+        raise ConfigError(f"task must be one of {', '.join(TRAINING_TASKS)}; got {task!r}")
     train_set, val_set = training_sets(data, model_config, config.seed, frames_progress)
-    return train(model_config, train_set, val_set, config, resume, progress)
-
-
-def pretrain_on(
-    data: TrainingData,
-    model_config: VcrConfig,
-    config: TrainConfig,
-    resume: bool = False,
-    progress: Progress | None = None,
-    frames_progress: FramesProgress | None = None,
-) -> TrainResult:
-    """The ``pretrain`` command: :func:`~vcr_odom.training.loop.pretrain` on the pairs of ``data``."""
-    train_set, val_set = training_sets(data, model_config, config.seed, frames_progress)
-    return pretrain(model_config, train_set, val_set, config, resume, progress)
+    return TRAINING_TASKS[task](model_config, train_set, val_set, config, resume, progress)
