@@ -1,19 +1,24 @@
 """Speed and memory of odometry methods on the same frames, reported as ratios to a baseline.
 
 Each method runs in its own subprocess so that its peak memory (max RSS) is its own; all of them
-read the same frames in the same invocation, so machine load affects them alike. Not a test: run
+read the same frames in the same invocation, and ``--repeat N`` interleaves N rounds of all methods
+and reports medians, so machine load affects them alike. Not a test: run
 
     .venv/bin/python benchmarks/pipeline_speed.py --data-root ../shared/data/kitti-sample --seq 00 \
-        --method vcr+icp --method icp --baseline kiss-icp [--frames 0:60] [--stride 1] [--json out.json] \
-        [--device auto|cpu|cuda] [--batch-size B] [--network-batch 1 --network-batch 16]
+        --method vcr+kiss-icp --method vcr+icp --baseline kiss-icp --repeat 3 [--frames 0:60] [--stride 1] \
+        [--json out.json] [--device auto|cpu|cuda] [--batch-size B] [--network-batch 1 --network-batch 16] \
+        [--rss-every 100]
 
-Without --data-root it generates a 100-frame synthetic sequence in a temporary folder.
-``--network-batch B`` (repeatable) also times VCR-Net alone on the benchmark's frames: pairs per second
-of batched inference (encode both clouds + register) at each batch size, as a ratio to the first.
-Per-stage seconds, timed by the frame loop (``vcr_odom.odometry.loop``): load (reading frames), prepare
-(per-frame work: crop, ground removal, down-sampling, the encoder, the polish's cloud), register
-(pairwise estimates), advance (plausibility check, polish, chaining), step (a method with its own
-state, kiss-icp), bookkeeping (the rest: callbacks, I/O).
+A method may carry ``@every-frame`` or ``@on-doubt`` (``vcr+kiss-icp@every-frame``): when its global
+registration runs (``--consult``). Without --data-root it generates a 100-frame synthetic sequence.
+``--network-batch B`` (repeatable) also times VCR-Net alone: pairs per second of batched inference
+(encode both clouds + register) at each batch size, as a ratio to the first. ``--rss-every N``
+records resident memory every N frames (``rss_mib_by_frame`` in the JSON).
+
+The per-stage columns come from :mod:`stage_profile` (beside this script): milliseconds per frame in
+load, crop, ground removal, sampling, encoder, registration, polish pre-processing, polish, all of
+kiss-icp, and ``other`` (the rest of the wall time: chaining, checks, waiting). Stages that run in
+the producer thread overlap the others, so the columns can add up to more than the wall time.
 """
 
 from __future__ import annotations
@@ -21,6 +26,7 @@ from __future__ import annotations
 import argparse
 import json
 import resource
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -29,6 +35,7 @@ from pathlib import Path
 from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
+from stage_profile import STAGES, StageProfile  # beside this script
 
 
 def measure(args: argparse.Namespace) -> dict:
@@ -39,19 +46,39 @@ def measure(args: argparse.Namespace) -> dict:
 
     sequence = open_sequence(args.seq, data_root=args.data_root)
     indices = select_frames(len(sequence), args.frames, args.stride)
-    options: dict = {}
-    if parse_method_spec(args.worker)[0] == "vcr":
-        options = {"weights": args.weights, "device": args.device, "batch_size": args.batch_size}
-    method = build_odometry(args.worker, **options)
-    run = run_odometry(sequence, method, indices)
+    spec, _, consult = args.worker.partition("@")
+    options: dict = {"consult": consult} if consult else {}
+    if parse_method_spec(spec)[0] == "vcr":
+        options |= {"weights": args.weights, "device": args.device, "batch_size": args.batch_size}
+    method = build_odometry(spec, **options)
+    profile = StageProfile()
+    rss: list[tuple[int, float]] = []
+
+    def sample_rss(index: int, *_: object) -> None:
+        if args.rss_every and len(rss) * args.rss_every <= indices.index(index):
+            rss.append((index, _current_rss_mib()))
+
+    with profile.patched():
+        run = run_odometry(sequence, method, indices, on_frame=sample_rss if args.rss_every else None)
+    stages = {stage: profile.seconds.get(stage, 0.0) for stage in STAGES}
+    stages["other"] = max(run.wall_seconds - sum(stages.values()), 0.0)
     return {
         "method": args.worker,
         "frames": len(run.frame_indices),
         "wall_seconds": run.wall_seconds,
         "frames_per_second": run.frames_per_second,
-        "stage_seconds": run.stage_seconds,
+        "stage_seconds": {name: seconds for name, seconds in stages.items() if seconds > 0},
+        "loop_seconds": run.stage_seconds,
         "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+        "rss_mib_by_frame": rss,
     }
+
+
+def _current_rss_mib() -> float:
+    """Resident memory now (Linux /proc), for the memory-over-frames check."""
+    with open("/proc/self/statm") as statm:
+        pages = int(statm.read().split()[1])
+    return pages * resource.getpagesize() / 2**20
 
 
 def run_worker(method: str, args: argparse.Namespace, data_root: Path) -> dict:
@@ -74,16 +101,35 @@ def run_worker(method: str, args: argparse.Namespace, data_root: Path) -> dict:
     command += ["--device", args.device]
     if args.batch_size is not None:
         command += ["--batch-size", str(args.batch_size)]
+    if args.rss_every:
+        command += ["--rss-every", str(args.rss_every)]
     completed = subprocess.run(command, capture_output=True, text=True, check=False)
     if completed.returncode != 0:
         raise SystemExit(f"{method} failed:\n{completed.stderr[-2000:]}")
     return json.loads(completed.stdout.strip().splitlines()[-1])
 
 
+def median_of(runs: list[dict]) -> dict:
+    """One method's rounds as one row: median fps, wall and stage times; the largest peak memory."""
+    median = statistics.median
+    row = dict(runs[len(runs) // 2])
+    row["rounds"] = len(runs)
+    row["frames_per_second"] = median(r["frames_per_second"] for r in runs)
+    row["wall_seconds"] = median(r["wall_seconds"] for r in runs)
+    stages = {stage for r in runs for stage in r["stage_seconds"]}
+    row["stage_seconds"] = {s: median(r["stage_seconds"].get(s, 0.0) for r in runs) for s in stages}
+    row["peak_rss_mib"] = max(r["peak_rss_mib"] for r in runs)
+    row["fps_rounds"] = [r["frames_per_second"] for r in runs]
+    return row
+
+
 def report(results: list[dict], baseline: str) -> Table:
     base = next(r for r in results if r["method"] == baseline)
-    stages = sorted({stage for r in results for stage in r["stage_seconds"]})
-    table = Table(title=f"{base['frames']} frames; ratios against {baseline} in the same run")
+    present = {stage for r in results for stage in r["stage_seconds"]}
+    stages = [stage for stage in (*STAGES, "other") if stage in present]
+    rounds = base.get("rounds", 1)
+    title = f"{base['frames']} frames; ratios against {baseline} in the same run"
+    table = Table(title=title + (f" (medians of {rounds} interleaved rounds)" if rounds > 1 else ""))
     for header in (
         "method",
         "fps",
@@ -166,7 +212,12 @@ def main() -> None:
     )
     parser.add_argument("--data-root", type=Path)
     parser.add_argument("--seq", default="00")
-    parser.add_argument("--method", action="append", default=[], help="method to time (repeat)")
+    parser.add_argument(
+        "--method",
+        action="append",
+        default=[],
+        help="method to time (repeat); SPEC@every-frame or @on-doubt sets --consult",
+    )
     parser.add_argument("--baseline", default="kiss-icp")
     parser.add_argument("--frames", default=None)
     parser.add_argument("--stride", type=int, default=1)
@@ -177,6 +228,10 @@ def main() -> None:
     parser.add_argument("--batch-size", type=int, help="VCR pairs per network call (default: 16 CUDA, 1 CPU)")
     parser.add_argument("--network-batch", type=int, action="append", default=[], help="time VCR-Net alone")
     parser.add_argument("--json", type=Path, help="also write the raw figures here")
+    parser.add_argument(
+        "--repeat", type=int, default=1, help="rounds over all methods, interleaved; the table shows medians"
+    )
+    parser.add_argument("--rss-every", type=int, default=0, help="sample resident memory every N frames")
     parser.add_argument("--worker", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.worker:
@@ -190,7 +245,8 @@ def main() -> None:
 
             data_root = Path(scratch)
             generate_sequence(data_root, seq=args.seq, frames=100, seed=0)
-        results = [run_worker(method, args, data_root) for method in methods]
+        rounds = [[run_worker(method, args, data_root) for method in methods] for _ in range(args.repeat)]
+        results = [median_of([r[i] for r in rounds]) for i in range(len(methods))]
         network = network_throughput(args, data_root) if args.network_batch else []
     console = Console(width=200)
     console.print(report(results, args.baseline))

@@ -112,7 +112,20 @@ def describe_methods() -> str:
 
 
 def vcr_options(function: F) -> F:
-    """``--weights``, ``--device`` and ``--vcr-passes`` for the learned method (ignored by the others)."""
+    """``--weights``, ``--device`` and ``--vcr-passes`` for the learned method (ignored by the others),
+    and ``--consult`` for any polished global method."""
+    from vcr_odom.odometry.chain import CONSULT_CHOICES
+    from vcr_odom.odometry.factory import DEFAULT_CONSULT
+
+    function = click.option(
+        "--consult",
+        type=click.Choice(list(CONSULT_CHOICES)),
+        default=DEFAULT_CONSULT,
+        show_default=True,
+        help="When a polished global method (vcr, fpfh) runs its registration: "
+        + "; ".join(f"{name}: {text}" for name, text in CONSULT_CHOICES.items())
+        + ".",
+    )(function)
     function = click.option(
         "--vcr-passes",
         type=click.IntRange(min=1),

@@ -280,3 +280,26 @@ def test_build_odometry_is_what_run_runs(synthetic_root, tmp_path, method):
         == json.loads(((tmp_path / "latest").resolve() / "metrics.json").read_text())["run"]["method"]
     )
     np.testing.assert_allclose(lidar_to_camera_poses(run.poses, sequence.tr_velo_to_cam), written, atol=1e-6)
+
+
+def test_consult_decides_how_often_the_network_runs(synthetic_root, tmp_path):
+    """On a steady synthetic drive the default asks VCR-Net on the first pair only; --consult
+    every-frame on every pair; metrics.json counts it."""
+    counts = {}
+    for consult in ("on-doubt", "every-frame"):
+        folder = tmp_path / consult
+        invoke(
+            "run",
+            "--data-root",
+            str(synthetic_root),
+            "--frames",
+            ":6",
+            "--consult",
+            consult,
+            "--results-dir",
+            str(folder),
+        )
+        counts[consult] = json.loads(((folder / "latest").resolve() / "metrics.json").read_text())["run"]
+    assert counts["on-doubt"]["global_registration"] == {"first pair": 1, "not needed": 4}
+    assert counts["every-frame"]["global_registration"] == {}
+    assert counts["on-doubt"]["method"] == counts["every-frame"]["method"] == "vcr+kiss-icp"

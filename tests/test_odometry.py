@@ -79,7 +79,7 @@ def test_chaining_follows_pose_t_plus_1_equals_pose_t_at_relative():
     np.testing.assert_allclose(run.poses, poses, atol=1e-12)
     assert registrar.prepared == list(range(len(poses)))  # each frame prepared exactly once
     assert run.frame_indices == list(range(len(poses)))
-    assert {"load", "prepare", "register", "advance", "bookkeeping"} == set(run.stage_seconds)
+    assert {"load", "prepare", "register", "advance", "waiting", "bookkeeping"} == set(run.stage_seconds)
 
 
 def test_strided_run_matches_strided_ground_truth():

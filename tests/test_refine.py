@@ -70,7 +70,7 @@ def test_identity_start_differs_from_constant_velocity_only_in_the_guess(synth: 
     gt = normalise_to_first(synth.gt_poses[indices])
     for run in (constant, identity):  # ~0.7 m per frame: within ICP's 1 m gate from either start
         assert trajectory_pair_errors(run.poses, gt).trans_rmse_m < 0.1
-    assert {"load", "prepare", "register", "advance", "bookkeeping"} == set(constant.stage_seconds)
+    assert {"load", "prepare", "register", "advance", "waiting", "bookkeeping"} == set(constant.stage_seconds)
 
 
 @pytest.mark.parametrize("polish", [IcpPolish, KissIcpPolish])

@@ -20,8 +20,8 @@ from vcr_odom.evaluation.pairs import PAIR_KINDS, PairProtocolResult, evaluate_p
 from vcr_odom.evaluation.pairs_polish import PAIR_POLISHES
 from vcr_odom.metrics import EvaluationReport
 from vcr_odom.model.weights import default_weights_path, read_weights
-from vcr_odom.odometry.chain import Odometry
-from vcr_odom.odometry.factory import build_odometry, canonical_spec
+from vcr_odom.odometry.chain import Consult, Odometry
+from vcr_odom.odometry.factory import DEFAULT_CONSULT, build_odometry, canonical_spec
 from vcr_odom.odometry.limits import InitialGuess
 from vcr_odom.odometry.loop import OdometryRun
 from vcr_odom.odometry.outputs import ground_truth_for, run_summary
@@ -53,6 +53,7 @@ class CompareSettings(Settings):
     weights: Path | None = None
     device: str = "auto"
     vcr_passes: int | None = Field(default=None, ge=1)
+    consult: Consult = DEFAULT_CONSULT
     results_dir: Path = Path("results")
 
     def method_options(self, spec: str) -> dict[str, Any]:

@@ -1,38 +1,53 @@
 """Relative poses chained into a trajectory: one class for every pairwise method, polished or not.
 
-The work of a frame is split in three calls so that whoever runs the loop can time each and, for a
-batching registrar, hand several frames over at once:
+The work of a frame is split in three calls so that whoever runs the loop can time each, run the first
+ahead in another thread, and, for a batching registrar, hand several frames over at once:
 
 - :meth:`Odometry.prepare` is per-frame work without state (the registrar's and the polish's): a
   frame is prepared once and serves as the source of one pair and the target of the next;
 - :meth:`Odometry.register` estimates each frame's motion from its predecessor (batched where the
   registrar batches: the relative poses are independent);
 - :meth:`Odometry.advance` is the sequential part: plausibility check, polish, chaining.
+
+With a polish, ``consult="on-doubt"`` asks the global registrar only where the motion prior's polished
+result is in doubt (:class:`DoubtRule`); its per-frame work then waits until a pair needs it.
 """
 
 from __future__ import annotations
 
+import statistics
+from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
 from vcr_odom.data.base import Points
+from vcr_odom.errors import ConfigError
 from vcr_odom.geometry import Transform, project_to_se3
 from vcr_odom.odometry.guided_kiss import motion_difference
 from vcr_odom.odometry.limits import InitialGuess, MotionLimits
-from vcr_odom.odometry.polish import Polish
+from vcr_odom.odometry.polish import Polish, PolishResult, PriorAttempt
 from vcr_odom.registration.base import FAILED_STATUSES, BatchRegistrar, Registrar, RegistrationResult
+
+Consult = Literal["every-frame", "on-doubt"]
+CONSULT_CHOICES: dict[str, str] = {
+    "every-frame": "the global registrar on every pair; the polish starts from its estimate and the prior",
+    "on-doubt": "the polish from the motion prior first; the global registrar only on a run's first pair, "
+    "where that result fits poorly or is implausible",
+}
 
 
 @dataclass
 class PreparedFrame:
-    """A frame as the registrar and the polish need it."""
+    """A frame as the registrar and the polish need it; ``registrar`` is None until a pair needs it
+    (``consult="on-doubt"``), which is why the points are kept."""
 
-    registrar: Any
-    polish: Any
+    points: Points
     timestamp: float
+    polish: Any = None
+    registrar: Any = None
 
 
 @dataclass
@@ -43,6 +58,17 @@ class Step:
     info: dict[str, Any] = field(default_factory=dict)
 
 
+@dataclass(frozen=True)
+class DoubtRule:
+    """When the prior's result is not taken on trust: on a run's first pair (no motion history), when
+    its motion is implausible, or when it fits worse than ``ratio`` times the median fit of the last
+    ``window`` results that were. A wrong result fits the other scan markedly worse than the ones
+    before it, while the fit itself varies by sensor and scene: hence a ratio to the run's own history."""
+
+    ratio: float = 0.8
+    window: int = 20
+
+
 class Odometry:
     """A pairwise :class:`Registrar` chained into odometry, with an optional :class:`Polish`.
 
@@ -50,6 +76,7 @@ class Odometry:
     too few points) is replaced by the previous motion and flagged, so one bad pair never throws the
     trajectory across the map silently; a polish that leaves the limits is undone the same way.
     ``initial_guess``: where a registrar that needs one (ICP) starts; global ones get none.
+    ``consult``: see :data:`CONSULT_CHOICES` (only with a polish).
     """
 
     def __init__(
@@ -59,44 +86,58 @@ class Odometry:
         *,
         initial_guess: InitialGuess = InitialGuess.CONSTANT_VELOCITY,
         limits: MotionLimits | None = None,
+        consult: Consult = "every-frame",
+        doubt: DoubtRule | None = None,
     ) -> None:
+        if consult not in CONSULT_CHOICES:
+            raise ConfigError(f"consult must be one of {', '.join(CONSULT_CHOICES)}; got {consult!r}")
         self.registrar = registrar
         self.polish = polish
         self.initial_guess = InitialGuess(initial_guess)
         self.limits = limits or MotionLimits()
+        self.consult: Consult = consult if polish is not None else "every-frame"
+        self.doubt = doubt or DoubtRule()
         self.name = registrar.name if polish is None else f"{registrar.name}+{polish.name}"
         self.last_info: dict[str, Any] = {}
         self.reset()
 
     @property
     def batch_size(self) -> int:
-        """Frames per call worth handing over (1 unless the registrar batches)."""
-        if isinstance(self.registrar, BatchRegistrar):
+        """Frames per call worth handing over (1 unless the registrar batches every pair)."""
+        if isinstance(self.registrar, BatchRegistrar) and self.consult == "every-frame":
             return max(1, int(getattr(self.registrar, "batch_size", 1)))
         return 1
+
+    @property
+    def prepare_ahead(self) -> bool:
+        """Whether the per-frame work gains from running in a second thread: not where it is kiss-icp's
+        (its C++ holds Python's GIL, so a thread only adds switching; README "Speed")."""
+        return self.polish is None or bool(getattr(self.polish, "prepare_ahead", True))
 
     def reset(self) -> None:
         """Forget the previous frame and the pose: the next frame is the first (identity)."""
         self._previous: PreparedFrame | None = None
         self._pose: Transform = np.eye(4)
         self._last_motion: Transform = np.eye(4)
+        self._fits: deque[float] = deque(maxlen=self.doubt.window)
         self.last_info = {}
 
     def prepare(self, frames: Sequence[tuple[Points, float]]) -> list[PreparedFrame]:
         """Per-frame work for ``(points, timestamp)`` frames; no state is read or changed."""
-        clouds = [points for points, _ in frames]
-        if isinstance(self.registrar, BatchRegistrar) and len(clouds) > 1:
-            prepared = self.registrar.prepare_batch(clouds)
-        else:
-            prepared = [self.registrar.prepare(points) for points in clouds]
-        polished = [self.polish.prepare(points) if self.polish else None for points in clouds]
-        return [
-            PreparedFrame(p, q, float(t)) for p, q, (_, t) in zip(prepared, polished, frames, strict=True)
-        ]
+        prepared = [PreparedFrame(points, float(t)) for points, t in frames]
+        if self.polish is not None:
+            for frame in prepared:
+                frame.polish = self.polish.prepare(frame.points)
+        if self.consult == "every-frame":
+            self._prepare_for_registrar(prepared)
+        return prepared
 
     def register(self, frames: Sequence[PreparedFrame]) -> list[RegistrationResult | None]:
         """Each frame's motion from its predecessor (the last advanced frame for the first of them);
-        None for the first frame of a run, which has no predecessor."""
+        None for a run's first frame, and for every frame with ``consult="on-doubt"`` (the estimate is
+        asked for in :meth:`advance`, where a pair needs it)."""
+        if self.consult == "on-doubt":
+            return [None] * len(frames)
         predecessors = [self._previous, *frames[:-1]]
         pairs = [(f, p) for f, p in zip(frames, predecessors, strict=True) if p is not None]
         if isinstance(self.registrar, BatchRegistrar) and len(pairs) > 1:
@@ -108,35 +149,25 @@ class Odometry:
 
     def advance(self, frame: PreparedFrame, result: RegistrationResult | None) -> Step:
         """Check the estimate, polish it and chain it: the sequential half of a frame."""
-        if self._previous is None or result is None:
+        previous = self._previous
+        if previous is None:
             self._previous = frame
             if self.polish is not None:
                 self.polish.start(frame.polish)
             self.last_info = {}
             return Step(self._pose.copy())
-        previous = self._previous
         seconds = frame.timestamp - previous.timestamp
-        coarse = np.asarray(result.transform, dtype=np.float64)
-        info: dict[str, Any] = {"fitness": result.fitness, "inlier_rmse": result.inlier_rmse, **result.info}
-        problem = self.limits.violation(coarse, seconds)
-        if problem is None and result.info.get("status") in FAILED_STATUSES:
-            problem = str(result.info["status"])
-        if problem is not None:
-            info |= {"flagged": True, "reason": problem}
-            coarse = self._last_motion
-        motion = coarse
-        if self.polish is not None:
-            polished = self.polish.refine(
-                frame.polish, previous.polish, coarse, pose=self._pose, last_motion=self._last_motion
-            )
-            motion = polished.motion
-            change_m, change_deg = motion_difference(coarse, motion)
-            info |= polished.info | {"polish_change_m": change_m, "polish_change_deg": change_deg}
-            diverged = self.limits.violation(motion, seconds)
-            if diverged is not None:
-                info |= {"flagged": True, "reason": f"polish diverged: {diverged}"}
-                self.polish.restart(frame.polish, self._pose, coarse)
-                motion = coarse
+        if self.consult == "on-doubt":
+            motion, info = self._from_prior_first(frame, previous, seconds)
+        else:
+            assert result is not None, "register() gives every frame after the first an estimate"
+            coarse, info = self._checked(result, seconds)
+            motion = coarse
+            if self.polish is not None:
+                polished = self.polish.refine(
+                    frame.polish, previous.polish, coarse, pose=self._pose, last_motion=self._last_motion
+                )
+                motion = self._kept(polished, coarse, frame, seconds, info)
         # Re-orthonormalised at every step: a rotation error of the pose would otherwise grow from
         # chained float rounding, and kiss-icp (which takes poses from here) needs exact SE(3).
         self._pose = project_to_se3(self._pose @ motion)
@@ -150,6 +181,85 @@ class Odometry:
         (frame,) = self.prepare([(points, timestamp)])
         (result,) = self.register([frame])
         return self.advance(frame, result).pose
+
+    def _from_prior_first(
+        self, frame: PreparedFrame, previous: PreparedFrame, seconds: float
+    ) -> tuple[Transform, dict[str, Any]]:
+        """``consult="on-doubt"``: the polish from the motion prior, and the global estimate only where
+        :class:`DoubtRule` says so (``info["global"]`` records why, or ``not needed``)."""
+        assert self.polish is not None
+        attempt = self.polish.from_prior(
+            frame.polish, previous.polish, pose=self._pose, last_motion=self._last_motion
+        )
+        reason = self._doubt_about(attempt, seconds)
+        if reason is None:
+            polished = self.polish.finish(attempt, frame.polish, previous.polish, None, pose=self._pose)
+            self._fits.append(attempt.fit)
+            return polished.motion, polished.info | {"prior_fit": attempt.fit, "global": "not needed"}
+        self._prepare_for_registrar([f for f in (previous, frame) if f.registrar is None])
+        result = self.registrar.register(frame.registrar, previous.registrar, None)
+        coarse, info = self._checked(result, seconds)
+        info |= {"prior_fit": attempt.fit, "global": reason}
+        polished = self.polish.finish(attempt, frame.polish, previous.polish, coarse, pose=self._pose)
+        motion = self._kept(polished, coarse, frame, seconds, info)
+        if polished.fit is not None and not info.get("flagged"):
+            self._fits.append(polished.fit)  # the accepted result: what later priors are held to
+        return motion, info
+
+    def _doubt_about(self, attempt: PriorAttempt, seconds: float) -> str | None:
+        if not self._fits:
+            return "first pair"
+        implausible = self.limits.violation(attempt.motion, seconds)
+        if implausible is not None:
+            return f"prior implausible: {implausible}"
+        median = statistics.median(self._fits)
+        if attempt.fit < self.doubt.ratio * median:
+            return f"poor fit {attempt.fit:.2f} (median {median:.2f})"
+        return None
+
+    def _checked(self, result: RegistrationResult, seconds: float) -> tuple[Transform, dict[str, Any]]:
+        """The global estimate, or the last motion where it is implausible or failed (flagged)."""
+        coarse = np.asarray(result.transform, dtype=np.float64)
+        info: dict[str, Any] = {"fitness": result.fitness, "inlier_rmse": result.inlier_rmse, **result.info}
+        problem = self.limits.violation(coarse, seconds)
+        if problem is None and result.info.get("status") in FAILED_STATUSES:
+            problem = str(result.info["status"])
+        if problem is not None:
+            info |= {"flagged": True, "reason": problem}
+            coarse = self._last_motion
+        return coarse, info
+
+    def _kept(
+        self,
+        polished: PolishResult,
+        coarse: Transform,
+        frame: PreparedFrame,
+        seconds: float,
+        info: dict[str, Any],
+    ) -> Transform:
+        """The polished motion, or the checked estimate where the polish left the plausible range
+        (flagged; the polish restarts there)."""
+        assert self.polish is not None
+        change_m, change_deg = motion_difference(coarse, polished.motion)
+        info |= polished.info | {"polish_change_m": change_m, "polish_change_deg": change_deg}
+        diverged = self.limits.violation(polished.motion, seconds)
+        if diverged is None:
+            return polished.motion
+        info |= {"flagged": True, "reason": f"polish diverged: {diverged}"}
+        self.polish.restart(frame.polish, self._pose, coarse)
+        self._fits.clear()
+        return coarse
+
+    def _prepare_for_registrar(self, frames: Sequence[PreparedFrame]) -> None:
+        if not frames:
+            return
+        clouds = [frame.points for frame in frames]
+        if isinstance(self.registrar, BatchRegistrar) and len(clouds) > 1:
+            prepared = self.registrar.prepare_batch(clouds)
+        else:
+            prepared = [self.registrar.prepare(points) for points in clouds]
+        for frame, registrar_frame in zip(frames, prepared, strict=True):
+            frame.registrar = registrar_frame
 
     def _guess(self) -> Transform:
         if self.initial_guess is InitialGuess.CONSTANT_VELOCITY:

@@ -8,7 +8,7 @@ from __future__ import annotations
 from typing import Any
 
 from vcr_odom.errors import ConfigError
-from vcr_odom.odometry.chain import Odometry
+from vcr_odom.odometry.chain import Consult, Odometry
 from vcr_odom.odometry.limits import InitialGuess, MotionLimits
 from vcr_odom.odometry.polish import POLISHES, make_polish
 from vcr_odom.registration import METHOD_NAMES, make_method
@@ -18,6 +18,10 @@ GLOBAL_METHODS = ("vcr", "fpfh")
 DEFAULT_GLOBAL_POLISH = "kiss-icp"
 """The polish a global method gets unless the spec names one (README "Choosing the polish" has the
 measurements behind it); local methods (ICP, kiss-icp) get none."""
+
+DEFAULT_CONSULT = "on-doubt"
+"""A polished global method asks its registrar where the motion prior's polished result is in doubt:
+as accurate as asking on every pair wherever measured (README "Speed"), at a fraction of the work."""
 
 POLISHED_VCR_PASSES = 1
 """VCR-Net passes per pair when a polish refines the estimate: the polish refines the residual a
@@ -69,18 +73,22 @@ def build_odometry(
     initial_guess: InitialGuess | str = InitialGuess.CONSTANT_VELOCITY,
     limits: MotionLimits | None = None,
     polish_options: dict[str, Any] | None = None,
+    consult: Consult = DEFAULT_CONSULT,
     **method_options: Any,
 ) -> Odometry | SequentialOdometry:
     """The odometry called ``spec`` (``name`` or ``name+polish``; see :func:`parse_method_spec`).
 
     ``method_options`` go to the registration method (e.g. ``weights=``, ``device=``, ``passes=`` for
-    VCR-Net), ``polish_options`` to the polish (e.g. ``second_start=False``).
+    VCR-Net), ``polish_options`` to the polish (e.g. ``second_start=False``); ``consult``: when a
+    polished method asks its registrar (:data:`~vcr_odom.odometry.chain.CONSULT_CHOICES`).
     """
     name, polish_name = parse_method_spec(spec)
     method = make_method(name, **registrar_options(name, polish_name != "none", method_options))
     if isinstance(method, Registrar):
         polish = make_polish(polish_name, **(polish_options or {}))
-        odometry = Odometry(method, polish, initial_guess=InitialGuess(initial_guess), limits=limits)
+        odometry = Odometry(
+            method, polish, initial_guess=InitialGuess(initial_guess), limits=limits, consult=consult
+        )
         odometry.name = canonical_spec(spec)
         return odometry
     if polish_options:

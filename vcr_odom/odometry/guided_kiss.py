@@ -2,16 +2,23 @@
 
 Every step is kiss-icp's own library piece, in its order (preprocess, voxelize, adaptive threshold,
 ``align_points_to_map``, model-deviation update, map update); what is added is a second start for the
-registration and the choice between the two results. These are kiss-icp internals, not its public
-API, so the supported versions are bounded in pyproject.toml and :func:`check_kiss_internals` names
-what is missing if a release moves them, instead of failing mid-run.
+registration, the choice between the two results, and a split of the work: what depends on the frame
+alone (:func:`kiss_frame`) may run ahead of the chain, and the registration from kiss-icp's own
+prediction (:meth:`GuidedKissICP.from_prediction`) can be looked at before deciding whether a second
+start is needed (:meth:`GuidedKissICP.finish`). These are kiss-icp internals, not its public API, so
+the supported versions are bounded in pyproject.toml and :func:`check_kiss_internals` names what is
+missing if a release moves them, instead of failing mid-run.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import open3d as o3d
-from kiss_icp.kiss_icp import KissICP
+from kiss_icp.config import KISSConfig
+from kiss_icp.kiss_icp import KissICP, get_preprocessor, voxel_down_sample
+from scipy.spatial import cKDTree
 
 from vcr_odom.errors import ConfigError
 from vcr_odom.geometry import Transform, invert, project_to_se3, rotation_angle
@@ -29,8 +36,54 @@ def check_kiss_internals(odometry: KissICP) -> None:
 
         raise ConfigError(
             f"the kiss-icp polish needs kiss-icp 1.x internals ({', '.join(missing)} missing in "
-            f"kiss-icp {getattr(kiss_icp, '__version__', '?')}); install kiss-icp>=1.0,<2 or use --refine icp"
+            f"kiss-icp {getattr(kiss_icp, '__version__', '?')}); install kiss-icp>=1.0,<2 or use --polish icp"
         )
+
+
+@dataclass
+class KissFrame:
+    """A frame as kiss-icp registers it. Without deskewing, pre-processing and voxelization depend on
+    the frame alone, so they are done here once (``raw`` is then None); with deskewing they need the
+    last motion and wait for the chain. ``tree`` indexes ``source`` for the frame-to-frame fit."""
+
+    raw: np.ndarray | None
+    source: np.ndarray | None = None
+    downsample: np.ndarray | None = None
+    tree: cKDTree | None = None
+
+
+class KissFramePreparer:
+    """:func:`kiss_frame` for one configuration (kiss-icp's pre-processor is built once)."""
+
+    def __init__(self, config: KISSConfig) -> None:
+        self.config = config
+        self.preprocessor = get_preprocessor(config)
+
+    def __call__(self, frame: np.ndarray) -> KissFrame:
+        if self.config.data.deskew:
+            return KissFrame(raw=frame)
+        source, downsample = voxelize(
+            self.config, self.preprocessor.preprocess(frame, np.array([]), np.eye(4))
+        )
+        return KissFrame(None, source, downsample, cKDTree(source) if len(source) else None)
+
+
+def voxelize(config: KISSConfig, frame: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """kiss-icp's ``KissICP.voxelize``: the registration's source and the map's down-sampled frame."""
+    downsample = voxel_down_sample(frame, config.mapping.voxel_size * 0.5)
+    return voxel_down_sample(downsample, config.mapping.voxel_size * 1.5), downsample
+
+
+@dataclass
+class KissAttempt:
+    """A frame registered from kiss-icp's own prediction, not yet committed to the map."""
+
+    frame: KissFrame
+    source: np.ndarray
+    downsample: np.ndarray
+    sigma: float
+    prediction: Transform
+    pose: Transform | None
 
 
 class GuidedKissICP(KissICP):
@@ -39,57 +92,76 @@ class GuidedKissICP(KissICP):
     Fed its own prediction as the guess it reproduces kiss-icp's poses exactly (a test holds it to that).
     """
 
-    def __init__(self, config: object) -> None:
+    def __init__(self, config: KISSConfig) -> None:
         super().__init__(config)
         check_kiss_internals(self)
         self.last_sigma = float("nan")
         self.last_source_points = 0
 
-    def seed(self, frame: np.ndarray, pose: Transform, last_delta: Transform) -> None:
+    def seed(self, frame: KissFrame, pose: Transform, last_delta: Transform) -> None:
         """Start (or restart) the local map with ``frame`` at ``pose``, without registering it against
         an empty map; ``last_delta`` is the motion into this frame (the next prediction's velocity)."""
-        frame = self.preprocessor.preprocess(frame, np.array([]), np.eye(4))
-        _, frame_downsample = self.voxelize(frame)
+        _, downsample = self._voxelized(frame, np.eye(4))
         pose = project_to_se3(pose)
-        self.local_map.update(frame_downsample, pose)
+        self.local_map.update(downsample, pose)
         self.last_pose, self.last_delta = pose, project_to_se3(last_delta)
 
-    def register_frame_with_guess(
-        self, frame: np.ndarray, guess: Transform, keep_prediction: bool = True
-    ) -> tuple[Transform, str]:
-        """Register ``frame`` (N x 3, float64) and return its pose and the start that won
-        (``"prediction"`` or ``"global"``).
-
-        ``keep_prediction``: start from kiss-icp's constant-velocity prediction and, where that result
-        is not within the basin of ``guess`` (the frame's pose by the global method), from ``guess``
-        too; the result that fits the local map better wins. False: ``guess`` replaces the prediction.
-        Why both: the prediction is the better start while the motion is steady, the global estimate
-        where it is not (a first pair, a sudden stop, a large stride). Fit is open3d's
-        ``evaluate_registration`` fitness within half a map voxel: kiss-icp's own 3-sigma gate grows
-        to metres after a large motion, where every start fits. The adaptive threshold learns the
-        deviation from the start that won, so it stays kiss-icp's own wherever the prediction wins.
-        Guesses are projected onto SE(3): kiss-icp's Sophus aborts the process on a rotation that is
-        orthonormal only to float32 precision.
-        """
-        frame = self.preprocessor.preprocess(frame, np.array([]), self.last_delta)
-        source, frame_downsample = self.voxelize(frame)
-        sigma = self.adaptive_threshold.get_threshold()
+    def from_prediction(self, frame: KissFrame, align: bool = True) -> KissAttempt:
+        """The frame registered from kiss-icp's constant-velocity prediction (``align=False``: not
+        registered yet, for a guess that replaces the prediction). Nothing is committed."""
+        source, downsample = self._voxelized(frame, self.last_delta)
+        sigma = float(self.adaptive_threshold.get_threshold())
         prediction = self.last_pose @ self.last_delta
-        guess = project_to_se3(guess)
-        start = "prediction" if keep_prediction else "global"
-        new_pose = self._align(source, prediction if keep_prediction else guess, sigma)
-        if keep_prediction and not within_basin(new_pose, guess):  # else it would end here too
-            from_guess = self._align(source, guess, sigma)
-            if self._fits_better(source, from_guess, new_pose):
-                new_pose, start = from_guess, "global"
-        start_pose = prediction if start == "prediction" else guess
+        pose = self._align(source, prediction, sigma) if align else None
+        return KissAttempt(frame, source, downsample, sigma, prediction, pose)
+
+    def finish(self, attempt: KissAttempt, guess: Transform | None = None) -> tuple[Transform, str]:
+        """Commit the frame: the prediction's result, or the result from ``guess`` (the frame's pose by
+        the global method) where that fits the local map better. Returns the pose and the start that
+        won (``"prediction"`` or ``"global"``).
+
+        ``guess`` is tried only where the prediction's result lies outside its basin (else it would end
+        there too). Fit is open3d's ``evaluate_registration`` fitness within half a map voxel: kiss-icp's
+        own 3-sigma gate grows to metres after a large motion, where every start fits. The adaptive
+        threshold learns the deviation from the start that won, so it stays kiss-icp's own wherever
+        the prediction wins. Guesses are projected onto SE(3): kiss-icp's Sophus aborts the process on
+        a rotation that is orthonormal only to float32 precision.
+        """
+        new_pose, start, start_pose = attempt.pose, "prediction", attempt.prediction
+        if guess is not None:
+            guess = project_to_se3(guess)
+            if new_pose is None:
+                new_pose, start, start_pose = (
+                    self._align(attempt.source, guess, attempt.sigma),
+                    "global",
+                    guess,
+                )
+            elif not within_basin(new_pose, guess):
+                from_guess = self._align(attempt.source, guess, attempt.sigma)
+                if self._fits_better(attempt.source, from_guess, new_pose):
+                    new_pose, start, start_pose = from_guess, "global", guess
+        if new_pose is None:
+            raise ValueError("finish() needs a guess for an attempt made without the prediction")
         self.adaptive_threshold.update_model_deviation(np.linalg.inv(start_pose) @ new_pose)
-        self.local_map.update(frame_downsample, new_pose)
+        self.local_map.update(attempt.downsample, new_pose)
         self.last_delta = np.linalg.inv(self.last_pose) @ new_pose
         self.last_pose = new_pose
-        self.last_sigma = float(sigma)
-        self.last_source_points = len(source)
+        self.last_sigma = attempt.sigma
+        self.last_source_points = len(attempt.source)
         return np.asarray(new_pose, dtype=np.float64), start
+
+    def register_frame_with_guess(
+        self, frame: KissFrame, guess: Transform, keep_prediction: bool = True
+    ) -> tuple[Transform, str]:
+        """Register ``frame`` from the prediction and, where needed, from ``guess`` (see :meth:`finish`);
+        ``keep_prediction=False``: ``guess`` replaces the prediction."""
+        return self.finish(self.from_prediction(frame, align=keep_prediction), guess)
+
+    def _voxelized(self, frame: KissFrame, last_delta: Transform) -> tuple[np.ndarray, np.ndarray]:
+        if frame.raw is None:
+            assert frame.source is not None and frame.downsample is not None
+            return frame.source, frame.downsample
+        return voxelize(self.config, self.preprocessor.preprocess(frame.raw, np.array([]), last_delta))
 
     def _align(self, source: np.ndarray, guess: Transform, sigma: float) -> Transform:
         """kiss-icp's registration step, as its ``register_frame`` calls it."""
@@ -112,6 +184,16 @@ class GuidedKissICP(KissICP):
             for candidate in (pose, than)
         ]
         return bool(fitness[0] > fitness[1])
+
+
+def frame_to_frame_fit(source: np.ndarray, motion: Transform, previous: KissFrame, distance: float) -> float:
+    """Share of ``source`` (this frame's registration points) that, moved by ``motion`` into the previous
+    frame, lie within ``distance`` of that frame's: a cheap check of a registration without the map."""
+    if previous.tree is None or len(source) == 0:
+        return 0.0
+    moved = source @ motion[:3, :3].T + motion[:3, 3]
+    distances, _ = previous.tree.query(moved, distance_upper_bound=distance)
+    return float(np.mean(np.isfinite(distances)))
 
 
 BASIN_M = 0.5

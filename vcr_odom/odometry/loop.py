@@ -6,6 +6,9 @@ so a method's code holds no timers and every method is timed the same way.
 
 from __future__ import annotations
 
+import contextlib
+import queue
+import threading
 import time
 from collections import defaultdict
 from collections.abc import Callable, Iterator, Sequence
@@ -17,8 +20,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from vcr_odom.data.base import LidarSequence, Points
+from vcr_odom.errors import ConfigError
 from vcr_odom.geometry import Transform
-from vcr_odom.odometry.chain import Odometry, Step
+from vcr_odom.odometry.chain import Odometry, PreparedFrame, Step
 from vcr_odom.registration.base import SequentialOdometry
 
 
@@ -26,9 +30,10 @@ from vcr_odom.registration.base import SequentialOdometry
 class OdometryRun:
     """What a run produced; ``poses`` are LiDAR-frame poses of ``frame_indices``, the first = identity.
 
-    ``stage_seconds``: ``load`` (reading frames), then for a chained method ``prepare`` (per-frame
-    work), ``register`` (pairwise estimates), ``advance`` (checks, polish, chaining), or ``step`` for
-    a method that keeps its own state (kiss-icp); ``bookkeeping`` is the rest of the wall time.
+    ``stage_seconds``: ``load`` (reading frames) and, for a chained method, ``prepare`` (per-frame
+    work), both in the producer thread when frames are prefetched; ``register`` (pairwise estimates),
+    ``advance`` (checks, polish, chaining), or ``step`` for a method that keeps its own state
+    (kiss-icp); ``waiting`` (for the producer); ``bookkeeping``, the rest of the wall time.
     """
 
     method: str
@@ -68,12 +73,70 @@ class StageTimer:
             self.seconds[stage] += time.perf_counter() - started
 
 
-def _steps(
-    method: Odometry | SequentialOdometry, frames: list[tuple[Points, float]], timer: StageTimer
-) -> list[Step]:
+Chunk = tuple[list[int], list[tuple[Points, float]], list[PreparedFrame] | None]
+
+
+def _produce(
+    sequence: LidarSequence,
+    method: Odometry | SequentialOdometry,
+    chunks: list[list[int]],
+    timer: StageTimer,
+) -> Iterator[Chunk]:
+    """Load each chunk of frames once and, for a chained method, do its per-frame work."""
+    timestamps = sequence.timestamps
+    for chunk in chunks:
+        with timer("load"):
+            frames = [(sequence.frame(index), float(timestamps[index])) for index in chunk]
+        prepared = None
+        if isinstance(method, Odometry) and method.prepare_ahead:
+            with timer("prepare"):
+                prepared = method.prepare(frames)
+        yield chunk, frames, prepared
+
+
+def _ahead(produce: Iterator[Chunk], depth: int, stop: threading.Event) -> Iterator[Chunk]:
+    """``produce`` run in a thread, at most ``depth`` chunks ahead of the consumer (a bounded queue),
+    so frame t+1 is loaded and prepared while frame t is registered and polished. Its exceptions are
+    raised here; ``stop`` ends it early (Ctrl-C in the consumer)."""
+    items: queue.Queue[Chunk | BaseException | None] = queue.Queue(maxsize=depth)
+
+    def work() -> None:
+        try:
+            for item in produce:
+                while not stop.is_set():
+                    try:
+                        items.put(item, timeout=0.1)
+                        break
+                    except queue.Full:
+                        continue
+                if stop.is_set():
+                    return
+        except BaseException as error:  # handed to the consumer, which re-raises it
+            items.put(error)
+            return
+        items.put(None)
+
+    thread = threading.Thread(target=work, name="odometry-producer", daemon=True)
+    thread.start()
+    try:
+        while (item := items.get()) is not None:
+            if isinstance(item, BaseException):
+                raise item
+            yield item
+    finally:
+        stop.set()
+        while thread.is_alive():  # let it see the stop and leave a put() it is blocked in
+            with contextlib.suppress(queue.Empty):
+                items.get(timeout=0.05)
+        thread.join()
+
+
+def _steps(method: Odometry | SequentialOdometry, item: Chunk, timer: StageTimer) -> list[Step]:
+    _, frames, prepared = item
     if isinstance(method, Odometry):
-        with timer("prepare"):
-            prepared = method.prepare(frames)
+        if prepared is None:
+            with timer("prepare"):
+                prepared = method.prepare(frames)
         with timer("register"):
             results = method.register(prepared)
         with timer("advance"):
@@ -92,13 +155,17 @@ def run_odometry(
     frame_indices: Sequence[int],
     *,
     on_frame: Callable[[int, Transform, Points], None] | None = None,
+    prefetch: int = 2,
 ) -> OdometryRun:
     """Run ``method`` over the chosen frames. Ctrl-C stops cleanly and returns the partial trajectory.
 
     ``on_frame(index, pose, points)`` sees each frame once, as loaded (for progress, checkpoints, maps).
-    A chained method whose registrar batches (VCR-Net on a GPU) gets chunks of frames; the poses are
-    the same, ``on_frame`` just comes a chunk at a time.
+    ``prefetch``: chunks loaded (and, where :attr:`Odometry.prepare_ahead`, prepared) ahead in a
+    second thread (0: all in this thread); the poses are the same either way. A chained method whose registrar batches (VCR-Net on a GPU) gets
+    chunks of frames; the poses are the same, ``on_frame`` just comes a chunk at a time.
     """
+    if prefetch < 0:
+        raise ConfigError(f"prefetch must be >= 0; got {prefetch}")
     method.reset()
     timer = StageTimer()
     poses: list[Transform] = []
@@ -106,15 +173,19 @@ def run_odometry(
     used: list[int] = []
     started = time.perf_counter()
     interrupted = False
-    all_timestamps = sequence.timestamps
     batch = method.batch_size if isinstance(method, Odometry) else 1
     frame_indices = list(frame_indices)
+    chunks = [frame_indices[i : i + batch] for i in range(0, len(frame_indices), batch)]
+    produce = _produce(sequence, method, chunks, timer)
+    stop = threading.Event()
+    items = _ahead(produce, prefetch, stop) if prefetch else produce
     try:
-        for chunk_start in range(0, len(frame_indices), batch):
-            chunk = frame_indices[chunk_start : chunk_start + batch]
-            with timer("load"):
-                frames = [(sequence.frame(index), float(all_timestamps[index])) for index in chunk]
-            for index, (points, _), step in zip(chunk, frames, _steps(method, frames, timer), strict=True):
+        while True:
+            with timer("waiting" if prefetch else "_serial"):
+                item = next(items, None)
+            if item is None:
+                break
+            for index, (points, _), step in zip(item[0], item[1], _steps(method, item, timer), strict=True):
                 poses.append(np.asarray(step.pose, dtype=np.float64))
                 infos.append(step.info)
                 used.append(index)
@@ -122,14 +193,23 @@ def run_odometry(
                     on_frame(index, step.pose, points)
     except KeyboardInterrupt:
         interrupted = True
+    finally:
+        stop.set()
+        if hasattr(items, "close"):
+            items.close()
     wall = time.perf_counter() - started
-    stages = dict(timer.seconds)
-    stages["bookkeeping"] = max(wall - sum(stages.values()), 0.0)
+    stages = {name: seconds for name, seconds in timer.seconds.items() if not name.startswith("_")}
+    consumer = sum(stages.get(name, 0.0) for name in ("register", "advance", "step", "waiting"))
+    if not prefetch:
+        consumer += stages.get("load", 0.0) + stages.get("prepare", 0.0)
+    elif isinstance(method, Odometry) and not method.prepare_ahead:
+        consumer += stages.get("prepare", 0.0)
+    stages["bookkeeping"] = max(wall - consumer, 0.0)
     return OdometryRun(
         method=method.name,
         frame_indices=used,
         poses=np.stack(poses) if poses else np.empty((0, 4, 4)),
-        timestamps=np.asarray(all_timestamps)[used] if used else np.empty(0),
+        timestamps=np.asarray(sequence.timestamps)[used] if used else np.empty(0),
         stage_seconds=stages,
         wall_seconds=wall,
         interrupted=interrupted,

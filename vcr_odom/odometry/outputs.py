@@ -86,10 +86,16 @@ def run_summary(run: OdometryRun) -> dict[str, Any]:
             if info.get("flagged")
         },
         "polish_starts": polish_starts(run),
+        "global_registration": global_consultations(run),
         "wall_seconds": run.wall_seconds,
         "frames_per_second": run.frames_per_second,
         "stage_seconds": run.stage_seconds,
     }
+
+
+def global_consultations(run: OdometryRun) -> dict[str, int]:
+    """With ``consult="on-doubt"``: why the global registration ran (or ``not needed``), per frame count."""
+    return dict(Counter(info["global"] for info in run.per_frame_info if info.get("global")))
 
 
 def polish_starts(run: OdometryRun) -> dict[str, int]:

@@ -19,7 +19,15 @@ from kiss_icp.config import KISSConfig
 from vcr_odom.data.base import Points
 from vcr_odom.errors import ConfigError, DataWarning
 from vcr_odom.geometry import Transform, invert
-from vcr_odom.odometry.guided_kiss import GuidedKissICP, within_basin
+from vcr_odom.odometry.guided_kiss import (
+    GuidedKissICP,
+    KissAttempt,
+    KissFrame,
+    KissFramePreparer,
+    frame_to_frame_fit,
+    within_basin,
+)
+from vcr_odom.registration.base import RegistrationResult
 from vcr_odom.registration.kiss import kiss_config
 from vcr_odom.registration.open3d_icp import Open3dIcp
 
@@ -39,11 +47,26 @@ class PolishResult:
 
     motion: Transform
     info: dict[str, Any] = field(default_factory=dict)
+    fit: float | None = None
+    """How well the result fits (as :attr:`PriorAttempt.fit`); set by ``finish``."""
+
+
+@dataclass
+class PriorAttempt:
+    """The frame registered from the motion prior alone, not yet committed: its relative motion, how
+    well it fits (``fit``: a share of points with a partner, comparable between frames of one run),
+    and what the polish needs to finish it."""
+
+    motion: Transform
+    fit: float
+    state: Any = None
 
 
 class Polish(Protocol):
     """``prepare`` is per-frame work without state (it may run ahead of the chain); ``start`` begins a
-    run at its first frame; ``refine`` polishes one motion; ``restart`` recovers after a divergence."""
+    run at its first frame; ``refine`` polishes one global estimate; ``from_prior`` and ``finish`` do
+    the same in two steps, so the global estimate is asked for only where the prior's result is in
+    doubt (``finish(attempt, None)`` keeps the prior's result); ``restart`` recovers after a divergence."""
 
     name: str
 
@@ -53,6 +76,14 @@ class Polish(Protocol):
 
     def refine(
         self, frame: Any, previous: Any, coarse: Transform, *, pose: Transform, last_motion: Transform
+    ) -> PolishResult: ...
+
+    def from_prior(
+        self, frame: Any, previous: Any, *, pose: Transform, last_motion: Transform
+    ) -> PriorAttempt: ...
+
+    def finish(
+        self, attempt: PriorAttempt, frame: Any, previous: Any, coarse: Transform | None, *, pose: Transform
     ) -> PolishResult: ...
 
     def restart(self, frame: Any, pose: Transform, motion: Transform) -> None: ...
@@ -98,15 +129,36 @@ class IcpPolish:
             from_last = self.icp.register(frame, previous, last_motion)
             if from_last.fitness > result.fitness:
                 result, start = from_last, "last motion"
-        info = {
-            "polish_fitness": result.fitness,
-            "polish_inlier_rmse": result.inlier_rmse,
-            "polish_start": start,
-        }
-        return PolishResult(np.asarray(result.transform, dtype=np.float64), info)
+        return _icp_result(result, start)
+
+    def from_prior(
+        self, frame: Any, previous: Any, *, pose: Transform, last_motion: Transform
+    ) -> PriorAttempt:
+        """ICP from the last motion; ``fit`` is ICP's fitness (share of points with a partner)."""
+        result = self.icp.register(frame, previous, last_motion)
+        return PriorAttempt(np.asarray(result.transform, dtype=np.float64), float(result.fitness), result)
+
+    def finish(
+        self, attempt: PriorAttempt, frame: Any, previous: Any, coarse: Transform | None, *, pose: Transform
+    ) -> PolishResult:
+        """The prior's result, or (given a global estimate) the better fit of it and ICP from the estimate."""
+        result = attempt.state
+        start = "last motion"
+        if coarse is not None:
+            from_global = self.icp.register(frame, previous, coarse)
+            if from_global.fitness >= result.fitness:
+                result, start = from_global, "global"
+        polished = _icp_result(result, start)
+        polished.fit = float(result.fitness)
+        return polished
 
     def restart(self, frame: Any, pose: Transform, motion: Transform) -> None:
         """Nothing to restart."""
+
+
+def _icp_result(result: RegistrationResult, start: str) -> PolishResult:
+    info = {"polish_fitness": result.fitness, "polish_inlier_rmse": result.inlier_rmse, "polish_start": start}
+    return PolishResult(np.asarray(result.transform, dtype=np.float64), info)
 
 
 class KissIcpPolish:
@@ -118,31 +170,72 @@ class KissIcpPolish:
     """
 
     name = "kiss-icp"
+    prepare_ahead = False
+    """kiss-icp's pre-processing holds Python's GIL: done in a second thread it only slows the chain."""
 
     def __init__(self, config: KISSConfig | None = None, keep_prediction: bool = True) -> None:
         self.config = config or kiss_config()
         self.keep_prediction = keep_prediction
         self.kiss = GuidedKissICP(self.config)
+        self._preparer = KissFramePreparer(self.config)
 
-    def prepare(self, points: Points) -> np.ndarray:
-        """kiss-icp's input: finite xyz as contiguous float64 (as :class:`KissIcpOdometry` feeds it)."""
-        frame = np.asarray(points, dtype=np.float64)[:, :3]
-        frame = np.ascontiguousarray(frame[np.isfinite(frame).all(axis=1)])
+    def prepare(self, points: Points) -> KissFrame:
+        """Finite xyz as float64 (as :class:`KissIcpOdometry` feeds kiss-icp), pre-processed and
+        voxelized as kiss-icp would, and indexed for the frame-to-frame fit."""
+        xyz = np.asarray(points)[:, :3]
+        frame = np.ascontiguousarray(xyz[np.isfinite(xyz).all(axis=1)], dtype=np.float64)
         if len(frame) == 0:
             warnings.warn(
                 "kiss-icp polish: empty frame, the global estimate is kept", DataWarning, stacklevel=3
             )
-        return frame
+        return self._preparer(frame)
 
-    def start(self, frame: np.ndarray) -> None:
+    def start(self, frame: KissFrame) -> None:
         """A new map, seeded with the first frame at the identity."""
         self.kiss = GuidedKissICP(self.config)
         self.kiss.seed(frame, np.eye(4), np.eye(4))
 
     def refine(
-        self, frame: np.ndarray, previous: Any, coarse: Transform, *, pose: Transform, last_motion: Transform
+        self,
+        frame: KissFrame,
+        previous: KissFrame,
+        coarse: Transform,
+        *,
+        pose: Transform,
+        last_motion: Transform,
     ) -> PolishResult:
-        new_pose, start = self.kiss.register_frame_with_guess(frame, pose @ coarse, self.keep_prediction)
+        attempt = self.kiss.from_prediction(frame, align=self.keep_prediction)
+        return self._finished(attempt, pose @ coarse, pose)
+
+    def from_prior(
+        self, frame: KissFrame, previous: KissFrame, *, pose: Transform, last_motion: Transform
+    ) -> PriorAttempt:
+        """kiss-icp from its own prediction; ``fit``: share of its registration points within a map voxel
+        of the previous frame's (frame to frame: a KD-tree of the map would cost more than the check)."""
+        attempt = self.kiss.from_prediction(frame)
+        assert attempt.pose is not None
+        motion = invert(pose) @ attempt.pose
+        fit = frame_to_frame_fit(attempt.source, motion, previous, self.config.mapping.voxel_size)
+        return PriorAttempt(motion, fit, attempt)
+
+    def finish(
+        self,
+        attempt: PriorAttempt,
+        frame: KissFrame,
+        previous: KissFrame,
+        coarse: Transform | None,
+        *,
+        pose: Transform,
+    ) -> PolishResult:
+        polished = self._finished(attempt.state, None if coarse is None else pose @ coarse, pose)
+        polished.fit = attempt.fit
+        if polished.info["polish_start"] != "prediction":
+            distance = self.config.mapping.voxel_size
+            polished.fit = frame_to_frame_fit(attempt.state.source, polished.motion, previous, distance)
+        return polished
+
+    def _finished(self, attempt: KissAttempt, guess: Transform | None, pose: Transform) -> PolishResult:
+        new_pose, start = self.kiss.finish(attempt, guess)
         info = {
             "kiss_sigma": self.kiss.last_sigma,
             "kiss_source_points": self.kiss.last_source_points,
@@ -150,7 +243,7 @@ class KissIcpPolish:
         }
         return PolishResult(invert(pose) @ new_pose, info)
 
-    def restart(self, frame: np.ndarray, pose: Transform, motion: Transform) -> None:
+    def restart(self, frame: KissFrame, pose: Transform, motion: Transform) -> None:
         """A diverged map would drag every later frame: start a new one at ``pose @ motion``."""
         self.kiss = GuidedKissICP(self.config)
         self.kiss.seed(frame, pose @ motion, motion)

@@ -14,8 +14,8 @@ from vcr_odom.data.selection import FrameSelection
 from vcr_odom.geometry import Transform
 from vcr_odom.mapping import VoxelMap
 from vcr_odom.metrics import EvaluationReport, evaluate
-from vcr_odom.odometry.chain import Odometry
-from vcr_odom.odometry.factory import build_odometry, canonical_spec
+from vcr_odom.odometry.chain import Consult, Odometry
+from vcr_odom.odometry.factory import DEFAULT_CONSULT, build_odometry, canonical_spec
 from vcr_odom.odometry.limits import InitialGuess
 from vcr_odom.odometry.loop import OdometryRun, run_odometry
 from vcr_odom.odometry.outputs import checkpointing, ground_truth_for, run_summary, save_trajectory
@@ -39,6 +39,7 @@ class RunSettings(Settings):
     weights: Path | None = None
     device: str = "auto"
     vcr_passes: int | None = Field(default=None, ge=1)
+    consult: Consult = DEFAULT_CONSULT
     save_map: Path | None = None
     map_voxel: float = Field(default=0.5, ge=0.05)
     results_dir: Path = Path("results")
@@ -71,6 +72,7 @@ def run_sequence(settings: RunSettings, progress: ProgressFactory | None = None)
     odometry = build_odometry(
         spec,
         initial_guess=settings.initial_guess,
+        consult=settings.consult,
         **vcr_options(spec.partition("+")[0], settings.weights, settings.device, settings.vcr_passes),
     )
     folder = create_result_folder(settings.results_dir, f"run_{sequence.name}_{spec}")

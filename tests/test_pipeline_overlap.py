@@ -1,0 +1,111 @@
+"""The frame loop's producer thread and the on-doubt consultation of the global registrar."""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+import pytest
+
+from vcr_odom.errors import DataError
+from vcr_odom.metrics import trajectory_pair_errors
+from vcr_odom.odometry import IcpPolish, KissIcpPolish, Odometry, build_odometry, run_odometry
+from vcr_odom.odometry.chain import DoubtRule
+from vcr_odom.registration.base import RegistrationResult
+from vcr_odom.synth import SynthSequence
+
+
+@pytest.fixture(scope="module")
+def synth() -> SynthSequence:
+    return SynthSequence(frames=18, seed=0)
+
+
+class IndexedOracle:
+    """The true motion of any pair of the sequence's frames, whichever pairs are asked for."""
+
+    name = "oracle"
+    needs_initial_guess = False
+
+    def __init__(self, sequence: SynthSequence, interrupt_at_pair: int | None = None) -> None:
+        self.index = {sequence.frame(i).tobytes(): i for i in range(len(sequence))}
+        self.poses = sequence.gt_poses
+        self.calls: list[tuple[int, int]] = []
+        self.interrupt_at_pair = interrupt_at_pair
+
+    def prepare(self, points: np.ndarray) -> int:
+        return self.index[np.asarray(points).tobytes()]
+
+    def register(
+        self, source: int, target: int, initial_guess: np.ndarray | None = None
+    ) -> RegistrationResult:
+        self.calls.append((source, target))
+        if len(self.calls) == self.interrupt_at_pair:
+            raise KeyboardInterrupt
+        return RegistrationResult(np.linalg.inv(self.poses[target]) @ self.poses[source])
+
+
+@pytest.mark.parametrize("consult", ["every-frame", "on-doubt"])
+def test_a_prefetched_run_equals_the_serial_run(synth: SynthSequence, consult: str) -> None:
+    """The producer only loads and prepares; chaining stays in order, so the poses are the same (to
+    float rounding: two serial runs already differ at 1e-15, from kiss-icp's and open3d's threaded sums)."""
+    method = build_odometry("vcr+kiss-icp", device="cpu", consult=consult)
+    serial = run_odometry(synth, method, range(8), prefetch=0)
+    overlapped = run_odometry(synth, method, range(8), prefetch=2)
+    np.testing.assert_allclose(overlapped.poses, serial.poses, rtol=0, atol=1e-9)
+    assert [i.get("global") for i in overlapped.per_frame_info] == [
+        i.get("global") for i in serial.per_frame_info
+    ]
+    assert "waiting" in overlapped.stage_seconds and "waiting" not in serial.stage_seconds
+
+
+def test_on_doubt_asks_the_registrar_on_the_first_pair_only_when_the_prior_holds(
+    synth: SynthSequence,
+) -> None:
+    oracle = IndexedOracle(synth)
+    run = run_odometry(synth, Odometry(oracle, IcpPolish(), consult="on-doubt"), range(8))
+    assert oracle.calls == [(1, 0)]
+    assert [i["global"] for i in run.per_frame_info[1:]] == ["first pair"] + ["not needed"] * 6
+    always = IndexedOracle(synth)
+    run_odometry(
+        synth, Odometry(always, IcpPolish(), consult="on-doubt", doubt=DoubtRule(ratio=2.0)), range(8)
+    )
+    assert always.calls == [(i, i - 1) for i in range(1, 8)]  # a fit is never twice the median
+
+
+@pytest.mark.parametrize("polish", [IcpPolish, KissIcpPolish])
+def test_a_prior_that_a_gap_in_the_frames_breaks_is_caught_by_its_fit(
+    synth: SynthSequence, polish: type
+) -> None:
+    """Frames 4 -> 14 after steps of one frame: the constant-velocity prior is ~7 m short. Its
+    polished result fits the scan poorly, so the registrar is asked, and the pair comes out right."""
+    indices = [0, 1, 2, 3, 4, 14, 15, 16]
+    oracle = IndexedOracle(synth)
+    run = run_odometry(synth, Odometry(oracle, polish(), consult="on-doubt"), indices)
+    assert (14, 4) in oracle.calls
+    assert run.per_frame_info[5]["global"] != "not needed"
+    errors = trajectory_pair_errors(run.poses, np.linalg.inv(synth.gt_poses[0]) @ synth.gt_poses[indices])
+    assert errors.trans_errors_m.max() < 0.3
+
+
+def test_ctrl_c_in_the_consumer_keeps_what_was_done_and_stops_the_producer(synth: SynthSequence) -> None:
+    oracle = IndexedOracle(synth, interrupt_at_pair=5)
+    run = run_odometry(synth, Odometry(oracle), range(12), prefetch=2)
+    assert run.interrupted and run.frame_indices == [0, 1, 2, 3, 4]
+    assert not any(thread.name == "odometry-producer" for thread in threading.enumerate())
+
+
+def test_an_error_in_the_producer_reaches_the_caller(synth: SynthSequence) -> None:
+    class BrokenFrame:
+        name, timestamps, gt_poses, tr_velo_to_cam = "broken", synth.timestamps, synth.gt_poses, None
+
+        def __len__(self) -> int:
+            return len(synth)
+
+        def frame(self, index: int) -> np.ndarray:
+            if index == 5:
+                raise DataError("frame 5: truncated file")
+            return synth.frame(index)
+
+    with pytest.raises(DataError, match="frame 5: truncated"):
+        run_odometry(BrokenFrame(), Odometry(IndexedOracle(synth)), range(8), prefetch=2)
+    assert not any(thread.name == "odometry-producer" for thread in threading.enumerate())
