@@ -237,19 +237,21 @@ def test_run_saves_a_map_of_the_registered_scans(synthetic_root, tmp_path):
 
 
 def test_demo_runs_vcr_with_the_shipped_weights(tmp_path):
-    """`make demo`'s command: no dataset, no --weights; the shipped default weights are found."""
-    output = invoke("demo", "--frames", "12", "--results-dir", str(tmp_path))
-    for method in ("icp10", "kiss-icp", "vcr+icp", "vcr+kiss-icp"):
+    """`make demo`'s command: no dataset, no --weights; the shipped default weights are found. Its
+    2 Hz, ~9 m-per-scan drive is where kiss-icp alone loses the track and the default holds it."""
+    output = invoke("demo", "--frames", "40", "--results-dir", str(tmp_path))
+    for method in ("icp10", "kiss-icp", "vcr+none", "vcr+icp", "vcr+kiss-icp"):
         assert method in output
     assert ((tmp_path / "latest").resolve() / "trajectories.png").is_file()
     report = json.loads(((tmp_path / "latest").resolve() / "compare.json").read_text())
-    assert report["vcr+icp"]["pairs"]["success_rate"] > 0.9
-    assert report["vcr+kiss-icp"]["pairs"]["success_rate"] > 0.9
+    end_point = {name: row["endpoint_drift"]["trans_error_percent"] for name, row in report.items()}
+    assert end_point["kiss-icp"] > 20.0 and end_point["vcr+kiss-icp"] < 2.0
+    assert report["vcr+kiss-icp"]["pairs"]["success_rate"] == 1.0
     # The network alone, with nothing to rescue it (the polishes also start from the motion prior):
     # a broken network fails here even where the polished rows pass.
-    alone = report["vcr+none"]["pairs"]
-    assert report["vcr+none"]["run"]["flagged_frames"] == []
-    assert alone["success_rate"] == 1.0 and alone["trans_rmse_m"] < 0.15 and alone["rot_rmse_deg"] < 0.5
+    alone = report["vcr+none"]
+    assert alone["run"]["flagged_frames"] == []
+    assert alone["pairs"]["success_rate"] > 0.9 and end_point["vcr+none"] < 15.0
 
 
 @pytest.mark.parametrize("method", ["vcr", "icp10", "kiss-icp"])

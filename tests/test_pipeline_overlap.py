@@ -109,3 +109,29 @@ def test_an_error_in_the_producer_reaches_the_caller(synth: SynthSequence) -> No
     with pytest.raises(DataError, match="frame 5: truncated"):
         run_odometry(BrokenFrame(), Odometry(IndexedOracle(synth)), range(8), prefetch=2)
     assert not any(thread.name == "odometry-producer" for thread in threading.enumerate())
+
+
+def test_an_assumed_frame_rate_only_flags_motions_it_calls_implausible() -> None:
+    """2 Hz keyframes ~9 m apart read as 10 Hz (no times file): 90 m/s "exceeds" the limits. With the
+    rate assumed, the estimates are kept and flagged with a hint; the trajectory is the one the true
+    times give, where nothing is flagged."""
+    drive = SynthSequence(frames=8, seed=3, frame_period=0.5, speed=18.0)
+
+    class AssumedRate:
+        name, gt_poses, tr_velo_to_cam, timestamps_assumed = "assumed", drive.gt_poses, None, True
+        timestamps = np.arange(len(drive)) * 0.1
+
+        def __len__(self) -> int:
+            return len(drive)
+
+        def frame(self, index: int) -> np.ndarray:
+            return drive.frame(index)
+
+    method = build_odometry("vcr+icp", device="cpu", consult="every-frame")
+    true_rate = run_odometry(drive, method, range(8))
+    assumed = run_odometry(AssumedRate(), method, range(8))
+    assert true_rate.flagged_frames == []
+    np.testing.assert_allclose(assumed.poses, true_rate.poses, atol=1e-6)
+    assert assumed.flagged_frames and all(
+        "--times" in assumed.per_frame_info[i]["reason"] for i in assumed.flagged_frames
+    )

@@ -31,6 +31,8 @@ from vcr_odom.odometry.limits import InitialGuess, MotionLimits
 from vcr_odom.odometry.polish import Polish, PolishResult, PriorAttempt
 from vcr_odom.registration.base import FAILED_STATUSES, BatchRegistrar, Registrar, RegistrationResult
 
+RATE_HINT = "give the real times with --times FILE or a times.txt beside the scans"
+
 Consult = Literal["every-frame", "on-doubt"]
 CONSULT_CHOICES: dict[str, str] = {
     "every-frame": "the global registrar on every pair; the polish starts from its estimate and the prior",
@@ -114,8 +116,12 @@ class Odometry:
         (its C++ holds Python's GIL, so a thread only adds switching; README "Speed")."""
         return self.polish is None or bool(getattr(self.polish, "prepare_ahead", True))
 
-    def reset(self) -> None:
-        """Forget the previous frame and the pose: the next frame is the first (identity)."""
+    def reset(self, *, timestamps_assumed: bool = False) -> None:
+        """Forget the previous frame and the pose: the next frame is the first (identity).
+
+        ``timestamps_assumed``: the sequence's frame rate is a guess (no times file), so a motion the
+        limits call implausible may only mean the guess is wrong: it is flagged, never replaced."""
+        self._replace_implausible = not timestamps_assumed
         self._previous: PreparedFrame | None = None
         self._pose: Transform = np.eye(4)
         self._last_motion: Transform = np.eye(4)
@@ -222,6 +228,9 @@ class Odometry:
         coarse = np.asarray(result.transform, dtype=np.float64)
         info: dict[str, Any] = {"fitness": result.fitness, "inlier_rmse": result.inlier_rmse, **result.info}
         problem = self.limits.violation(coarse, seconds)
+        if problem is not None and not self._replace_implausible:
+            info |= {"flagged": True, "reason": f"{problem} at the assumed frame rate; kept ({RATE_HINT})"}
+            problem = None
         if problem is None and result.info.get("status") in FAILED_STATUSES:
             problem = str(result.info["status"])
         if problem is not None:
@@ -244,6 +253,12 @@ class Odometry:
         info |= polished.info | {"polish_change_m": change_m, "polish_change_deg": change_deg}
         diverged = self.limits.violation(polished.motion, seconds)
         if diverged is None:
+            return polished.motion
+        if not self._replace_implausible:
+            info |= {
+                "flagged": True,
+                "reason": f"polish: {diverged} at the assumed frame rate; kept ({RATE_HINT})",
+            }
             return polished.motion
         info |= {"flagged": True, "reason": f"polish diverged: {diverged}"}
         self.polish.restart(frame.polish, self._pose, coarse)

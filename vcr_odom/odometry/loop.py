@@ -166,7 +166,10 @@ def run_odometry(
     """
     if prefetch < 0:
         raise ConfigError(f"prefetch must be >= 0; got {prefetch}")
-    method.reset()
+    if isinstance(method, Odometry):
+        method.reset(timestamps_assumed=bool(getattr(sequence, "timestamps_assumed", False)))
+    else:
+        method.reset()
     timer = StageTimer()
     poses: list[Transform] = []
     infos: list[dict[str, Any]] = []
