@@ -9,14 +9,15 @@ and a frame with too few points is padded by resampling (an empty frame becomes 
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 import open3d as o3d
 from numpy.typing import NDArray
+from pydantic import Field, model_validator
 
 from vcr_odom.errors import ConfigError, DataWarning
+from vcr_odom.settings import Settings
 
 if TYPE_CHECKING:
     from vcr_odom.model.config import VcrConfig
@@ -26,8 +27,7 @@ DOWNSAMPLE_METHODS = ("fps", "random", "voxel")
 uniform without replacement (cheapest); ``voxel``: voxel-grid centroids, then exactly N by random choice."""
 
 
-@dataclass(frozen=True)
-class PreprocessConfig:
+class PreprocessConfig(Settings):
     """Parameters of :func:`preprocess`; the defaults suit a KITTI-like HDL-64E mounted 1.73 m high.
 
     Ranges (metres, 3-D distance from the sensor):
@@ -68,40 +68,30 @@ class PreprocessConfig:
     ``seed``: seeds RANSAC, the FPS start point and random choices.
     """
 
-    min_range: float = 2.0
-    max_range: float = 80.0
+    min_range: float = Field(default=2.0, ge=0)
+    max_range: float = Field(default=80.0, gt=0)
     remove_ground: bool = True
-    ground_distance_threshold: float = 0.25
-    ground_ransac_n: int = 3
-    ground_num_iterations: int = 100
-    ground_max_tilt_deg: float = 20.0
-    ground_max_attempts: int = 3
-    ground_sample_size: int = 10000
-    n_points: int = 1024
-    method: str = "fps"
-    voxel_size: float = 0.3
-    fps_candidates: int | None = 16384
-    min_points: int | None = None
+    ground_distance_threshold: float = Field(default=0.25, gt=0)
+    ground_ransac_n: int = Field(default=3, ge=3)
+    ground_num_iterations: int = Field(default=100, ge=1)
+    ground_max_tilt_deg: float = Field(default=20.0, gt=0, le=90)
+    ground_max_attempts: int = Field(default=3, ge=1)
+    ground_sample_size: int = Field(default=10000, ge=3)
+    n_points: int = Field(default=1024, ge=1)
+    method: Literal["fps", "random", "voxel"] = "fps"
+    voxel_size: float = Field(default=0.3, gt=0)
+    fps_candidates: int | None = Field(default=16384, ge=1)
+    min_points: int | None = Field(default=None, ge=1)
     keep_reflectance: bool = False
     seed: int = 0
 
-    def __post_init__(self) -> None:
-        if self.method not in DOWNSAMPLE_METHODS:
-            raise ConfigError(f"method must be one of {', '.join(DOWNSAMPLE_METHODS)}; got {self.method!r}")
-        if self.n_points < 1:
-            raise ConfigError(f"n_points must be >= 1; got {self.n_points}")
-        if self.fps_candidates is not None and self.fps_candidates < 1:
-            raise ConfigError(f"fps_candidates must be None or >= 1; got {self.fps_candidates}")
-        if not 0.0 <= self.min_range < self.max_range:
-            raise ConfigError(f"need 0 <= min_range < max_range; got {self.min_range}, {self.max_range}")
-        if self.ground_distance_threshold <= 0 or self.voxel_size <= 0:
-            raise ConfigError("ground_distance_threshold and voxel_size must be > 0")
-        if self.ground_ransac_n < 3 or self.ground_num_iterations < 1 or self.ground_max_attempts < 1:
-            raise ConfigError(
-                "need ground_ransac_n >= 3, ground_num_iterations >= 1, ground_max_attempts >= 1"
-            )
+    @model_validator(mode="after")
+    def _consistent(self) -> PreprocessConfig:
+        if self.min_range >= self.max_range:
+            raise ValueError(f"need min_range < max_range; got {self.min_range}, {self.max_range}")
         if self.ground_sample_size < self.ground_ransac_n:
-            raise ConfigError(f"ground_sample_size must be >= ground_ransac_n; got {self.ground_sample_size}")
+            raise ValueError(f"ground_sample_size must be >= ground_ransac_n; got {self.ground_sample_size}")
+        return self
 
 
 def _as_points(points: NDArray) -> NDArray[np.float32]:
