@@ -277,11 +277,6 @@ def test_flops_grow_with_the_points_as_the_network_says() -> None:
     assert a > 0 and b >= 2 * TINY.feature_dim
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="FlopCounterMode does not count scaled_dot_product_attention on the CPU (no flop formula "
-    "for its CPU flash kernel), so flops_per_pair leaves out the attention's N² products",
-)
 def test_flops_include_the_attention() -> None:
     """Per pair of points: the affinity (2C) and four attention calls (self-attention of each cloud,
     cross-attention both ways), each 2C for the logits and 2C for the weighted sum."""

@@ -13,10 +13,24 @@ from typing import Any
 
 import torch
 from torch import nn
-from torch.utils.flop_counter import FlopCounterMode
+from torch.utils.flop_counter import FlopCounterMode, register_flop_formula, sdpa_flop_count
 
 from vcr_odom.model.config import PRESETS, VcrConfig
 from vcr_odom.model.network import VCRNet
+
+_CPU_ATTENTION = getattr(torch.ops.aten, "_scaled_dot_product_flash_attention_for_cpu", None)
+if _CPU_ATTENTION is not None:
+    # torch's counter knows the CUDA attention kernels but not the CPU one that
+    # scaled_dot_product_attention dispatches to here, so without this the attention's N² products
+    # would be missing from the count; the formula is torch's own for the other kernels.
+    try:
+
+        @register_flop_formula(_CPU_ATTENTION)
+        def _cpu_attention_flops(query_shape, key_shape, value_shape, *args, out_shape=None, **kwargs) -> int:  # type: ignore[no-untyped-def]
+            return sdpa_flop_count(query_shape, key_shape, value_shape)
+
+    except RuntimeError:  # a later torch that registers it itself
+        pass
 
 
 def parameter_count(model: nn.Module) -> dict[str, int]:
