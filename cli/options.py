@@ -9,6 +9,8 @@ from typing import Any, TypeVar
 
 import click
 
+from vcr_odom.data.bin_scans import DEFAULT_BIN_COLUMNS, MAX_BIN_COLUMNS
+from vcr_odom.data.kiss_loaders import LOADERS, install_hint, installed_loaders
 from vcr_odom.data.selection import FrameSelection
 from vcr_odom.errors import VcrOdomError
 
@@ -16,18 +18,39 @@ F = TypeVar("F", bound=Callable[..., Any])
 
 
 class FriendlyGroup(click.Group):
-    """Turns the library's own errors into one clear line and exit code 1, instead of a traceback."""
+    """The one exit-code convention (``vcr_odom.cli.progress``): the library's own errors become one
+    clear line instead of a traceback, exit 2 for a ``ConfigError`` (a bad option, as click's own
+    usage errors) and 1 for the rest; Ctrl-C that reaches here exits 130 (what was done is kept)."""
 
     def invoke(self, ctx: click.Context) -> Any:
+        from vcr_odom.cli.progress import EXIT_USAGE, exit_interrupted
+        from vcr_odom.errors import ConfigError
+
         try:
             return super().invoke(ctx)
         except VcrOdomError as error:
-            raise click.ClickException(str(error)) from error
+            failure = click.ClickException(str(error))
+            if isinstance(error, ConfigError):
+                failure.exit_code = EXIT_USAGE
+            raise failure from error
+        except KeyboardInterrupt:
+            exit_interrupted("Interrupted (Ctrl-C).")
+
+
+def describe_loaders() -> str:
+    """``--dataloader`` help: what is usable on this installation, and the extra for the rest."""
+    installed = installed_loaders()
+    missing = [f"{name} ({install_hint(name)})" for name in LOADERS if name not in installed]
+    text = "Read --data with one of kiss-icp's loaders. Installed here: " + "; ".join(
+        f"{name} ({LOADERS[name].summary})" for name in installed
+    )
+    return text + (f". Not installed: {'; '.join(missing)}." if missing else ".")
 
 
 def sequence_options(function: F) -> F:
-    """Where the frames come from (a KITTI-layout root plus ``--seq``, or a plain ``--folder`` of scans)
-    and which to use; the command receives them as one ``selection: FrameSelection`` argument."""
+    """Where the frames come from (a KITTI-layout root plus ``--seq``, a plain ``--folder`` of scans, or
+    a recording through ``--dataloader NAME --data PATH``) and which to use; the command receives them as
+    one ``selection: FrameSelection`` argument."""
     decorators = [
         click.option(
             "--data-root",
@@ -36,7 +59,12 @@ def sequence_options(function: F) -> F:
             show_envvar=True,
             help="KITTI odometry root holding sequences/XX/velodyne and poses/XX.txt.",
         ),
-        click.option("--seq", default="00", show_default=True, help="Sequence id under --data-root."),
+        click.option(
+            "--seq",
+            default="00",
+            show_default=True,
+            help="Sequence id under --data-root (also the sequence of --dataloader kitti_raw, nuscenes, helipr).",
+        ),
         click.option(
             "--folder",
             type=click.Path(path_type=Path, exists=True, file_okay=False),
@@ -45,12 +73,39 @@ def sequence_options(function: F) -> F:
         click.option(
             "--poses",
             type=click.Path(path_type=Path, exists=True, dir_okay=False),
-            help="With --folder: ground-truth poses (KITTI format).",
+            help="With --folder or --dataloader: ground-truth poses (KITTI format, one line per frame).",
         ),
         click.option(
             "--calib",
             type=click.Path(path_type=Path, exists=True, dir_okay=False),
-            help="With --folder: KITTI calib.txt whose Tr says the poses are in the camera frame.",
+            help="With --poses: KITTI calib.txt whose Tr says the poses are in the camera frame.",
+        ),
+        click.option(
+            "--times",
+            type=click.Path(path_type=Path, exists=True, dir_okay=False),
+            help="With --folder or --dataloader: timestamps, seconds, one line per frame (times.txt format). "
+            "A times.txt inside --folder is used without this; with neither, 10 Hz is assumed (a warning).",
+        ),
+        click.option(
+            "--bin-columns",
+            type=click.IntRange(min=3, max=MAX_BIN_COLUMNS),
+            default=DEFAULT_BIN_COLUMNS,
+            show_default=True,
+            help="float32 values per point in .bin scans: 4 = x, y, z, reflectance (KITTI); "
+            "5 = x, y, z, intensity, ring; 3 = x, y, z. Columns past the 4th are ignored.",
+        ),
+        click.option(
+            "--dataloader",
+            type=click.Choice(list(LOADERS), case_sensitive=False),
+            help=describe_loaders(),
+        ),
+        click.option(
+            "--data",
+            type=click.Path(path_type=Path, exists=True),
+            help="With --dataloader: the recording (a .bag/.mcap/.pcap file, a ROS 2 bag folder, a dataset root).",
+        ),
+        click.option(
+            "--topic", help="With --dataloader rosbag/mcap: the PointCloud2 topic (needed if several)."
         ),
         click.option("--frames", default=None, metavar="A:B", help="Only frames A..B-1 (Python slice)."),
         click.option(
@@ -64,7 +119,20 @@ def sequence_options(function: F) -> F:
 
     @functools.wraps(function)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
-        names = ("data_root", "seq", "folder", "poses", "calib", "frames", "stride")
+        names = (
+            "data_root",
+            "seq",
+            "folder",
+            "poses",
+            "calib",
+            "times",
+            "bin_columns",
+            "dataloader",
+            "data",
+            "topic",
+            "frames",
+            "stride",
+        )
         kwargs["selection"] = FrameSelection(**{name: kwargs.pop(name) for name in names})
         return function(*args, **kwargs)
 

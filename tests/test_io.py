@@ -87,3 +87,35 @@ def test_written_files_follow_the_umask_like_any_other_file(tmp_path):
     reference.write_text("x")
     written = io.atomic_write_text(tmp_path / "atomic.txt", "x")
     assert written.stat().st_mode == reference.stat().st_mode
+
+
+@pytest.mark.parametrize(
+    ("content", "line", "expected"),
+    [
+        (b"0\n0\n0\n", 2, "strictly increasing.*repeats"),
+        (b"0.0\n0.2\n0.1\n", 3, "strictly increasing.*goes back"),
+        (b"0.0 1\n0.1 2\n", 1, "one number.*2 columns"),
+        (b"time\n0.0\n", 1, "one number.*'time'"),
+        (b"0.0\nnan\n", 2, "one number.*'nan'"),
+        (b"0.0\n0.1\n\xff\xfe\n", 3, "not UTF-8"),
+    ],
+    ids=["all-zero", "decreasing", "two-columns", "header-word", "nan", "not-utf8"],
+)
+def test_bad_times_files_name_the_file_the_line_and_what_was_expected(tmp_path, content, line, expected):
+    path = tmp_path / "times.txt"
+    path.write_bytes(content)
+    with pytest.raises(DataError, match=expected) as error:
+        io.read_times(path)
+    assert str(error.value).startswith(f"{path}:{line}:")
+
+
+def test_times_round_trip_exactly_skip_blank_lines_and_reject_empty_files(tmp_path):
+    stamps = np.array([0.0, 0.1037, 0.2071, 1.7e9 + 0.123456789])  # an epoch stamp keeps its ns
+    np.testing.assert_array_equal(io.read_times(io.write_times(tmp_path / "times.txt", stamps)), stamps)
+    (tmp_path / "gaps.txt").write_text("\ufeff0.5\n\n0.6\n  \n")  # a BOM and blank lines are harmless
+    np.testing.assert_array_equal(io.read_times(tmp_path / "gaps.txt"), [0.5, 0.6])
+    (tmp_path / "empty.txt").write_text("\n")
+    with pytest.raises(DataError, match=r"empty\.txt: no timestamps"):
+        io.read_times(tmp_path / "empty.txt")
+    with pytest.raises(DataError, match=r"not found.*missing\.txt"):
+        io.read_times(tmp_path / "missing.txt")

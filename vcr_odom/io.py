@@ -126,18 +126,64 @@ def write_kitti_calib(path: str | os.PathLike[str], entries: dict[str, ArrayLike
 
 
 def read_times(path: str | os.PathLike[str]) -> NDArray[np.float64]:
-    """Read a KITTI ``times.txt`` (one timestamp in seconds a line)."""
+    """Read a KITTI ``times.txt``: one timestamp in seconds a line, strictly increasing.
+
+    Odometry turns frame gaps into speeds, so a wrong stamp is a wrong velocity rather than a cosmetic
+    problem: every rule is checked here and a broken file raises :class:`DataError` naming the file, the
+    line and what was expected. Blank lines are skipped (line numbers still count them); a second column,
+    a header word, NaN/inf, a repeated or decreasing stamp (an all-zero file included) and bytes that are
+    not UTF-8 text are all errors. Whether there is one line per frame is the caller's check (it knows
+    the frame count): see :func:`vcr_odom.data.scans.load_times`.
+    """
     path = Path(path)
+    if not path.is_file():
+        raise DataError(f"timestamps file not found: {path}")
+    raw = path.read_bytes()
     try:
-        times = np.loadtxt(path, dtype=np.float64, ndmin=1)
-    except ValueError as error:
-        raise DataError(f"{path}: expected one number (seconds) per line") from error
-    return times
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as error:
+        line = raw[: error.start].count(b"\n") + 1
+        raise DataError(
+            f"{path}:{line}: not UTF-8 text (byte 0x{raw[error.start]:02x}); a times.txt holds one number "
+            "(seconds) per line"
+        ) from None
+    expected = "one number (seconds) per line, strictly increasing"
+    stamps: list[float] = []
+    previous_line = 0
+    for number, line in enumerate(text.splitlines(), start=1):
+        fields = line.split()
+        if not fields:
+            continue
+        if len(fields) != 1:
+            raise DataError(
+                f"{path}:{number}: expected {expected}; got {len(fields)} columns: {line.strip()!r}"
+            )
+        try:
+            value = float(fields[0])
+        except ValueError:
+            raise DataError(f"{path}:{number}: expected {expected}; got {fields[0]!r}") from None
+        if not np.isfinite(value):
+            raise DataError(f"{path}:{number}: expected {expected}; got {fields[0]!r}")
+        if stamps and value <= stamps[-1]:
+            how = "repeats" if value == stamps[-1] else "goes back from"
+            raise DataError(
+                f"{path}:{number}: timestamps must be strictly increasing; {value!r} {how} "
+                f"{stamps[-1]!r} on line {previous_line}"
+            )
+        stamps.append(value)
+        previous_line = number
+    if not stamps:
+        raise DataError(f"{path}: no timestamps (expected {expected})")
+    return np.asarray(stamps, dtype=np.float64)
 
 
 def write_times(path: str | os.PathLike[str], times: ArrayLike) -> Path:
-    """Write a KITTI ``times.txt`` (one timestamp in seconds a line) atomically."""
-    return atomic_write_text(path, "".join(f"{t:.6e}\n" for t in np.asarray(times, dtype=np.float64)))
+    """Write a KITTI ``times.txt`` (one timestamp in seconds a line) atomically.
+
+    Each stamp is written in full (the shortest text that reads back to the same float): KITTI's own
+    ``%e`` keeps 7 digits, which is fine from 0 but rounds Unix-epoch stamps (1.7e9 s) to 1000 s.
+    """
+    return atomic_write_text(path, "".join(f"{float(t)!r}\n" for t in np.asarray(times, dtype=np.float64)))
 
 
 def format_tum_trajectory(poses: ArrayLike, timestamps: ArrayLike) -> str:

@@ -18,6 +18,8 @@ class LidarSequence(Protocol):
     ``gt_poses`` is ``(len, 4, 4)`` float64 in the LiDAR frame with frame 0 = identity, or None.
     ``tr_velo_to_cam`` is KITTI's ``Tr`` (LiDAR -> left camera) when a calibration is known, else None.
     ``timestamps`` is seconds per frame (10 Hz assumed where the source has none).
+    ``timestamps_assumed`` is True exactly when they were assumed: no times were given and a rate was
+    guessed, so speeds derived from frame gaps are guesses too (odometry flags rather than trusts them).
     """
 
     name: str
@@ -31,6 +33,9 @@ class LidarSequence(Protocol):
 
     @property
     def timestamps(self) -> NDArray[np.float64]: ...
+
+    @property
+    def timestamps_assumed(self) -> bool: ...
 
     @property
     def tr_velo_to_cam(self) -> NDArray[np.float64] | None: ...

@@ -1,7 +1,9 @@
 """A plain folder of scans (``.bin``, ``.pcd`` or ``.ply``), for data that is not in the KITTI layout.
 
 Users bring recordings exported by other tools; this takes them as they are: files sorted naturally
-by name, an optional KITTI-format poses file, 10 Hz assumed unless a ``times.txt``-style file is given.
+by name, hidden files (macOS ``._*`` resource forks) skipped, an optional KITTI-format poses file, and
+timestamps from a given ``times.txt``-style file or the folder's own ``times.txt`` (10 Hz assumed, with a
+warning, when there is neither).
 """
 
 from __future__ import annotations
@@ -14,19 +16,17 @@ import numpy as np
 from numpy.typing import NDArray
 
 from vcr_odom.data.base import Points
+from vcr_odom.data.bin_scans import DEFAULT_BIN_COLUMNS, check_bin_size, check_columns, read_bin_scan
+from vcr_odom.data.cloud_files import check_cloud_file
 from vcr_odom.data.scans import (
+    TIMES_FILE,
     ScanFileSequence,
-    assumed_timestamps,
-    check_bin_size,
-    check_pose_count,
     clean_points,
-    load_times,
+    folder_times_remedy,
+    is_hidden,
     natural_sort_key,
-    read_bin_scan,
-    read_tr,
 )
 from vcr_odom.errors import DataError
-from vcr_odom.io import read_kitti_poses
 
 SCAN_EXTENSIONS = (".bin", ".pcd", ".ply")
 
@@ -50,7 +50,9 @@ def _reflectance(cloud: object, count: int) -> NDArray[np.float32]:
 def read_open3d_scan(path: str | os.PathLike[str]) -> Points:
     """Read a ``.pcd``/``.ply`` with open3d's tensor API (which keeps custom fields like intensity).
 
-    open3d only logs when it cannot parse a file; an unreadable file raises DataError here, while a
+    open3d only logs when it cannot parse a file, and fills a truncated PLY's missing points with
+    garbage; so a file whose data is shorter than its header declares raises DataError first
+    (:func:`~vcr_odom.data.cloud_files.check_cloud_file`), an unreadable file raises DataError, and a
     file whose header declares zero points is an empty frame (a warning), as for ``.bin`` scans.
     """
     import open3d as o3d  # heavy import, only when such files are used
@@ -58,6 +60,10 @@ def read_open3d_scan(path: str | os.PathLike[str]) -> Points:
     path = Path(path)
     if not path.is_file():
         raise DataError(f"scan file not found: {path}")
+    try:
+        check_cloud_file(path, path.read_bytes())
+    except OSError as error:
+        raise DataError(f"cannot read scan file {path}: {error}") from error
     with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
         cloud = o3d.t.io.read_point_cloud(str(path))
     if "positions" not in cloud.point or cloud.point.positions.shape[0] == 0:
@@ -71,12 +77,12 @@ def read_open3d_scan(path: str | os.PathLike[str]) -> Points:
     return clean_points(points, path)
 
 
-def read_scan(path: str | os.PathLike[str]) -> Points:
-    """Read any supported scan file by its extension."""
+def read_scan(path: str | os.PathLike[str], bin_columns: int = DEFAULT_BIN_COLUMNS) -> Points:
+    """Read any supported scan file by its extension (``bin_columns``: float32 columns of a ``.bin``)."""
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix == ".bin":
-        return read_bin_scan(path)
+        return read_bin_scan(path, bin_columns)
     if suffix in (".pcd", ".ply"):
         return read_open3d_scan(path)
     raise DataError(
@@ -85,10 +91,15 @@ def read_scan(path: str | os.PathLike[str]) -> Points:
 
 
 def list_scan_files(folder: Path) -> list[Path]:
-    """Scan files of one kind, naturally sorted; mixed kinds are an error (frame order would be a guess)."""
+    """Scan files of one kind, naturally sorted; mixed kinds are an error (frame order would be a guess).
+    Hidden files are not scans (see :func:`~vcr_odom.data.scans.is_hidden`)."""
     if not folder.is_dir():
         raise DataError(f"scan folder does not exist: {folder}")
-    files = [p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in SCAN_EXTENSIONS]
+    files = [
+        p
+        for p in folder.iterdir()
+        if p.is_file() and p.suffix.lower() in SCAN_EXTENSIONS and not is_hidden(p)
+    ]
     if not files:
         hint = f" (did you mean {folder / 'velodyne'}?)" if (folder / "velodyne").is_dir() else ""
         raise DataError(f"no scans ({', '.join(SCAN_EXTENSIONS)}) in {folder}{hint}")
@@ -99,12 +110,13 @@ def list_scan_files(folder: Path) -> list[Path]:
 
 
 class FolderSequence(ScanFileSequence):
-    """A folder of ``.bin`` (KITTI float32x4), ``.pcd`` or ``.ply`` scans, read lazily.
+    """A folder of ``.bin`` (float32 records, ``bin_columns`` a point), ``.pcd`` or ``.ply`` scans, read lazily.
 
     ``poses`` is a KITTI-format poses file (one 3x4 pose a line, one line per scan). With a ``calib``
     holding ``Tr`` the poses are taken as KITTI camera-frame poses and converted to the LiDAR frame;
-    without one they are taken as LiDAR-frame poses. ``times`` is an optional ``times.txt``-style file;
-    without it 10 Hz is assumed (one warning).
+    without one they are taken as LiDAR-frame poses. ``times`` is a ``times.txt``-style file; without it
+    the folder's own ``times.txt`` is used if there is one (it is where KITTI keeps it, and users copy
+    the layout), else 10 Hz is assumed with one warning and :attr:`timestamps_assumed` is True.
     """
 
     def __init__(
@@ -114,7 +126,9 @@ class FolderSequence(ScanFileSequence):
         calib: str | os.PathLike[str] | None = None,
         *,
         times: str | os.PathLike[str] | None = None,
+        bin_columns: int = DEFAULT_BIN_COLUMNS,
     ) -> None:
+        self.bin_columns = check_columns(bin_columns)
         self.path = Path(path).expanduser()
         self.sequence_path = self.path
         self.name = f"folder/{self.path.resolve().name}"
@@ -122,23 +136,18 @@ class FolderSequence(ScanFileSequence):
         self.kind = self.files[0].suffix.lower()
         if self.kind == ".bin":
             for file in self.files:  # stat only, as for KITTI: fail before a long run, read nothing
-                check_bin_size(file)
+                check_bin_size(file, self.bin_columns)
 
         self.poses_path = Path(poses).expanduser() if poses is not None else None
         self.calib_path = Path(calib).expanduser() if calib is not None else None
         self.times_path = Path(times).expanduser() if times is not None else None
-
-        tr = read_tr(self.calib_path, required=True) if self.calib_path is not None else None
-        pose_array = None
-        if self.poses_path is not None:
-            pose_array = read_kitti_poses(self.poses_path)
-            check_pose_count(pose_array, len(self.files), self.poses_path, self.path)
-        self._set_poses(pose_array, tr, camera_frame=tr is not None)
-
-        if self.times_path is not None:
-            self._timestamps = load_times(self.times_path, len(self.files))
-        else:
-            self._timestamps = assumed_timestamps(len(self.files), self.path)
+        if self.times_path is None and (self.path / TIMES_FILE).is_file():
+            self.times_path = self.path / TIMES_FILE
+        self._set_user_poses(self.poses_path, self.calib_path, self.path)
+        remedy = folder_times_remedy()
+        if (self.path.parent / TIMES_FILE).is_file():  # KITTI keeps it beside velodyne/, not in it
+            remedy += f" ({self.path.parent / TIMES_FILE} may be it: pass it with --times)"
+        self._set_times(self.times_path, len(self.files), self.path, remedy)
 
     def _read(self, path: Path) -> Points:
-        return read_scan(path)
+        return read_scan(path, self.bin_columns)

@@ -10,12 +10,12 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from vcr_odom.data.bin_scans import DEFAULT_BIN_COLUMNS, check_bin_size, check_columns
 from vcr_odom.data.scans import (
+    TIMES_FILE,
     ScanFileSequence,
-    assumed_timestamps,
-    check_bin_size,
     check_pose_count,
-    load_times,
+    is_hidden,
     natural_sort_key,
     read_tr,
 )
@@ -95,10 +95,14 @@ class KittiSequence(ScanFileSequence):
     A poses file without ``calib.txt`` (or without its ``Tr`` line) raises DataError: KITTI poses are
     in the camera frame, and using them as LiDAR-frame poses would give silently wrong metrics.
     ``Tr``'s rotation is projected onto the nearest exact rotation (a change below the file's printed
-    precision) when read.
+    precision) when read. ``bin_columns`` is the float32 columns per point of the scans (4 in KITTI;
+    5 for x, y, z, intensity, ring exports); hidden files (``._*`` resource forks) are not scans.
     """
 
-    def __init__(self, root: str | os.PathLike[str], seq: str | int) -> None:
+    def __init__(
+        self, root: str | os.PathLike[str], seq: str | int, *, bin_columns: int = DEFAULT_BIN_COLUMNS
+    ) -> None:
+        self.bin_columns = check_columns(bin_columns)
         self.root = Path(root).expanduser()
         self.seq, self.sequence_path = _sequence_folder(self.root, seq)
         self.name = f"kitti/{self.seq}"
@@ -107,7 +111,7 @@ class KittiSequence(ScanFileSequence):
 
         calib_path = self.sequence_path / "calib.txt"
         poses_path = self.root / "poses" / f"{self.seq}.txt"
-        times_path = self.sequence_path / "times.txt"
+        times_path = self.sequence_path / TIMES_FILE
         self.calib_path = calib_path if calib_path.is_file() else None
         self.poses_path = poses_path if poses_path.is_file() else None
         self.times_path = times_path if times_path.is_file() else None
@@ -126,17 +130,19 @@ class KittiSequence(ScanFileSequence):
                 )
         self._set_poses(poses, tr, camera_frame=True)
 
-        if self.times_path is not None:
-            self._timestamps = load_times(self.times_path, len(self.files))
-        else:
-            self._timestamps = assumed_timestamps(len(self.files), self.sequence_path)
+        remedy = (
+            f"add the sequence's {TIMES_FILE} to {self.sequence_path}, or open {self.velodyne_path} "
+            "with --folder and --times FILE"
+        )
+        self._set_times(self.times_path, len(self.files), self.sequence_path, remedy)
 
     def _list_scans(self) -> list[Path]:
         if not self.velodyne_path.is_dir():
             raise DataError(f"{self.sequence_path} has no velodyne/ folder of .bin scans")
-        files = sorted(self.velodyne_path.glob("*.bin"), key=natural_sort_key)
+        scans = (path for path in self.velodyne_path.glob("*.bin") if not is_hidden(path))
+        files = sorted(scans, key=natural_sort_key)
         if not files:
             raise DataError(f"no .bin scans in {self.velodyne_path}")
         for path in files:  # stat only: catches a truncated file before a long run, reads nothing
-            check_bin_size(path)
+            check_bin_size(path, self.bin_columns)
         return files

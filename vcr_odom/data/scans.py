@@ -1,7 +1,8 @@
-"""What every file-backed scan loader shares: the ``.bin`` reader, point clean-up, timestamps, ``Tr``,
-and the lazy sequence base that :mod:`~vcr_odom.data.kitti` and :mod:`~vcr_odom.data.folder` extend.
+"""What every scan loader shares: point clean-up, timestamps, ``Tr``, and the lazy sequence bases that
+:mod:`~vcr_odom.data.kitti`, :mod:`~vcr_odom.data.folder` and :mod:`~vcr_odom.data.kiss_loaders` extend.
 
-pykitti decodes the ``.bin`` scans (:func:`pykitti.utils.load_velo_scan`).
+``.bin`` decoding lives in :mod:`~vcr_odom.data.bin_scans` (re-exported here): pykitti's reader fixed
+four float32 columns, and users' files come with five, or as float64.
 """
 
 from __future__ import annotations
@@ -17,14 +18,19 @@ import numpy as np
 from numpy.typing import NDArray
 
 from vcr_odom.data.base import Points
+from vcr_odom.data.bin_scans import DEFAULT_BIN_COLUMNS, read_bin_scan
 from vcr_odom.errors import DataError, DataWarning
 from vcr_odom.geometry import camera_to_lidar_poses, lidar_to_camera_poses, normalise_to_first, project_to_se3
-from vcr_odom.io import read_kitti_calib, read_times
+from vcr_odom.io import read_kitti_calib, read_kitti_poses, read_times
 
 DEFAULT_RATE_HZ = 10.0
 """KITTI's Velodyne spins at about 10 Hz: the assumed rate where a source has no timestamps."""
 
-BIN_POINT_BYTES = 16  # float32 x, y, z, reflectance
+TIMES_FILE = "times.txt"
+"""The timestamps file KITTI keeps beside a sequence's scans; a scan folder's own is found too."""
+
+SECONDS_STEP_LIMIT = 1e3
+"""A median frame step above this many seconds means the file is not in seconds (ns or us epochs)."""
 
 
 def natural_sort_key(path: str | os.PathLike[str]) -> tuple[tuple[int, int | str], ...]:
@@ -33,17 +39,10 @@ def natural_sort_key(path: str | os.PathLike[str]) -> tuple[tuple[int, int | str
     return tuple((0, int(part)) if part.isdigit() else (1, part) for part in parts if part)
 
 
-def check_bin_size(path: Path) -> None:
-    """A KITTI scan is whole float32x4 records; any other size means a truncated or foreign file."""
-    try:
-        size = path.stat().st_size
-    except OSError as error:
-        raise DataError(f"cannot read scan file {path}: {error}") from error
-    if size % BIN_POINT_BYTES:
-        raise DataError(
-            f"{path}: size {size} bytes is not a multiple of {BIN_POINT_BYTES} "
-            "(KITTI .bin scans are float32 x, y, z, reflectance records); the file is truncated or not a scan"
-        )
+def is_hidden(path: Path) -> bool:
+    """Dot-files are never scans: macOS writes ``._name`` resource forks beside every file it copies to
+    a foreign disk, and they carry a scan's extension but not its data."""
+    return path.name.startswith(".")
 
 
 def clean_points(points: NDArray[np.floating], source: str | os.PathLike[str]) -> Points:
@@ -66,34 +65,41 @@ def clean_points(points: NDArray[np.floating], source: str | os.PathLike[str]) -
     return np.ascontiguousarray(points, dtype=np.float32)
 
 
-def read_bin_scan(path: str | os.PathLike[str]) -> Points:
-    """Read one KITTI ``.bin`` scan as float32 ``(N, 4)``; bad sizes raise DataError naming the file."""
-    from pykitti.utils import load_velo_scan  # imported here: pykitti pulls in PIL, only needed to read
-
-    path = Path(path)
-    check_bin_size(path)
-    return clean_points(load_velo_scan(str(path)), path)
-
-
-def assumed_timestamps(count: int, where: str | os.PathLike[str]) -> NDArray[np.float64]:
-    """10 Hz timestamps from 0, with one DataWarning naming the source so the user knows they are guessed."""
+def assumed_timestamps(count: int, where: str | os.PathLike[str], remedy: str) -> NDArray[np.float64]:
+    """10 Hz timestamps from 0, with one DataWarning that names the source and says how to give the real
+    ones (``remedy``), so nobody mistakes guessed stamps for measured ones."""
     warnings.warn(
-        f"{where}: no timestamps (times.txt), assuming {DEFAULT_RATE_HZ:g} Hz",
+        f"{where}: no timestamps (no {TIMES_FILE}), assuming {DEFAULT_RATE_HZ:g} Hz; {remedy}",
         DataWarning,
         stacklevel=3,
     )
     return np.arange(count, dtype=np.float64) / DEFAULT_RATE_HZ
 
 
+def folder_times_remedy() -> str:
+    """How a user of a scan folder (or a loader) gives real timestamps."""
+    return (
+        f"give the real ones with --times FILE (seconds, one line per frame) or put a {TIMES_FILE} "
+        "beside the scans"
+    )
+
+
 def load_times(path: Path, count: int) -> NDArray[np.float64]:
-    """Read ``times.txt`` and insist on one line per frame (a mismatch would misalign every stamp)."""
-    if not path.is_file():
-        raise DataError(f"timestamps file not found: {path}")
+    """Read ``times.txt`` (checked by :func:`vcr_odom.io.read_times`) and insist on one line per frame:
+    a mismatch would misalign every stamp. A median step over 1000 s warns: the file is likely in
+    nanoseconds or microseconds, and odometry reads seconds."""
     times = read_times(path)
     if len(times) != count:
-        raise DataError(f"{path}: {len(times)} timestamps but {count} scan files")
-    if not np.all(np.isfinite(times)):
-        raise DataError(f"{path}: timestamps contain NaN or inf")
+        raise DataError(
+            f"{path}: {len(times)} timestamps but {count} frames; the times file needs one line per frame"
+        )
+    if count > 1 and float(np.median(np.diff(times))) > SECONDS_STEP_LIMIT:
+        warnings.warn(
+            f"{path}: the median step between frames is {float(np.median(np.diff(times))):.3g} s; "
+            "timestamps must be in seconds (this looks like nanoseconds or microseconds)",
+            DataWarning,
+            stacklevel=3,
+        )
     return times
 
 
@@ -125,23 +131,25 @@ def check_pose_count(poses: NDArray[np.float64], count: int, poses_path: Path, s
         )
 
 
-class ScanFileSequence:
-    """Lazy sequence over a sorted list of scan files: nothing is read until :meth:`frame` is called.
-
-    Subclasses fill ``files``, ``name`` and the private pose/time/calibration attributes.
-    """
+class SequenceBase:
+    """What every :class:`~vcr_odom.data.base.LidarSequence` here shares: index checks, ground truth in
+    both frames, timestamps and whether they were assumed. Subclasses set ``name``, implement
+    ``__len__`` and ``_load(position)``, and call :meth:`_set_poses` and :meth:`_set_times`."""
 
     name: str
-    files: list[Path]
     gt_poses_camera: NDArray[np.float64] | None
     """Ground truth in KITTI's left-camera frame (frame 0 = identity), or None when no calibration."""
 
     _gt_poses: NDArray[np.float64] | None
     _timestamps: NDArray[np.float64]
+    _timestamps_assumed: bool
     _tr: NDArray[np.float64] | None
 
     def __len__(self) -> int:
-        return len(self.files)
+        raise NotImplementedError
+
+    def _load(self, position: int) -> Points:
+        raise NotImplementedError
 
     def __iter__(self) -> Iterator[Points]:
         for index in range(len(self)):
@@ -153,10 +161,7 @@ class ScanFileSequence:
 
     def frame(self, index: int) -> Points:
         """Frame ``index`` (negative counts from the end) as float32 ``(N, 4)``: x, y, z, reflectance."""
-        return self._read(self.files[self._check_index(index)])
-
-    def _read(self, path: Path) -> Points:
-        return read_bin_scan(path)
+        return self._load(self._check_index(index))
 
     def _check_index(self, index: int) -> int:
         position = operator.index(index)  # TypeError for floats, as for lists
@@ -178,9 +183,42 @@ class ScanFileSequence:
         return self._timestamps
 
     @property
+    def timestamps_assumed(self) -> bool:
+        """True when no timestamps were given and :data:`DEFAULT_RATE_HZ` was assumed: odometry should
+        then not trust speeds derived from frame gaps."""
+        return self._timestamps_assumed
+
+    @property
     def tr_velo_to_cam(self) -> NDArray[np.float64] | None:
         """KITTI's 4x4 ``Tr`` (LiDAR -> left camera), or None when no calibration is known."""
         return self._tr
+
+    def _set_times(
+        self,
+        times_path: Path | None,
+        count: int,
+        where: str | os.PathLike[str],
+        remedy: str,
+        given: NDArray[np.float64] | None = None,
+    ) -> None:
+        """Timestamps from ``times_path``, else ``given`` (a loader's own), else assumed with a warning."""
+        self._timestamps_assumed = times_path is None and given is None
+        if times_path is not None:
+            self._timestamps = load_times(times_path, count)
+        elif given is not None:
+            self._timestamps = np.asarray(given, dtype=np.float64)
+        else:
+            self._timestamps = assumed_timestamps(count, where, remedy)
+
+    def _set_user_poses(self, poses_path: Path | None, calib_path: Path | None, where: Path) -> None:
+        """Ground truth from a user's KITTI-format poses file: camera-frame poses when ``calib_path``
+        holds ``Tr`` (converted to the LiDAR frame), LiDAR-frame poses without one."""
+        tr = read_tr(calib_path, required=True) if calib_path is not None else None
+        pose_array = None
+        if poses_path is not None:
+            pose_array = read_kitti_poses(poses_path)
+            check_pose_count(pose_array, len(self), poses_path, where)
+        self._set_poses(pose_array, tr, camera_frame=tr is not None)
 
     def _set_poses(
         self, poses: NDArray[np.float64] | None, tr: NDArray[np.float64] | None, camera_frame: bool
@@ -200,3 +238,22 @@ class ScanFileSequence:
             self._gt_poses = normalise_to_first(poses)
             if tr is not None:
                 self.gt_poses_camera = lidar_to_camera_poses(self._gt_poses, tr)
+
+
+class ScanFileSequence(SequenceBase):
+    """Lazy sequence over a sorted list of scan files: nothing is read until :meth:`frame` is called.
+
+    Subclasses fill ``files``, ``name``, ``bin_columns`` and the pose/time/calibration attributes.
+    """
+
+    files: list[Path]
+    bin_columns: int = DEFAULT_BIN_COLUMNS
+
+    def __len__(self) -> int:
+        return len(self.files)
+
+    def _load(self, position: int) -> Points:
+        return self._read(self.files[position])
+
+    def _read(self, path: Path) -> Points:
+        return read_bin_scan(path, self.bin_columns)

@@ -1,4 +1,5 @@
-"""Which frames of which sequence: ``--frames A:B`` and ``--stride K`` over a KITTI root or a folder."""
+"""Which frames of which sequence: ``--frames A:B`` and ``--stride K`` over a KITTI root, a folder, or a
+recording read by a kiss-icp loader (``--dataloader NAME --data PATH``)."""
 
 from __future__ import annotations
 
@@ -6,7 +7,9 @@ from pathlib import Path
 
 from pydantic import Field
 
-from vcr_odom.data import LidarSequence, open_sequence
+from vcr_odom.data import DEFAULT_BIN_COLUMNS, LidarSequence, open_sequence
+from vcr_odom.data.bin_scans import MAX_BIN_COLUMNS
+from vcr_odom.data.kiss_loaders import LOADERS, KissLoaderSequence
 from vcr_odom.errors import ConfigError
 from vcr_odom.settings import Settings
 
@@ -36,21 +39,56 @@ def select_frames(length: int, frames: str | None = None, stride: int = 1) -> li
 
 
 class FrameSelection(Settings):
-    """A sequence's source (a KITTI-layout root plus ``seq``, or a plain ``folder`` of scans) and which
-    of its frames to use: what the ``--data-root/--seq/--folder/...`` options say."""
+    """A sequence's source (a KITTI-layout root plus ``seq``, a plain ``folder`` of scans, or a
+    ``dataloader`` reading ``data``) and which of its frames to use: what the
+    ``--data-root/--seq/--folder/--dataloader/...`` options say."""
 
     data_root: Path | None = None
     seq: str = "00"
     folder: Path | None = None
     poses: Path | None = None
     calib: Path | None = None
+    times: Path | None = None
+    bin_columns: int = Field(default=DEFAULT_BIN_COLUMNS, ge=3, le=MAX_BIN_COLUMNS)
+    dataloader: str | None = None
+    data: Path | None = None
+    topic: str | None = None
     frames: str | None = None
     stride: int = Field(default=1, ge=1)
 
     def open(self) -> LidarSequence:
+        if self.dataloader is not None or self.data is not None:
+            return self._open_recording()
+        if self.topic:
+            raise ConfigError("--topic only applies to a recording: --dataloader rosbag|mcap --data PATH")
         seq = None if self.folder else self.seq  # seq has a default; a folder wins over it
         return open_sequence(
-            seq, data_root=self.data_root, folder=self.folder, poses=self.poses, calib=self.calib
+            seq,
+            data_root=self.data_root,
+            folder=self.folder,
+            poses=self.poses,
+            calib=self.calib,
+            times=self.times,
+            bin_columns=self.bin_columns,
+        )
+
+    def _open_recording(self) -> KissLoaderSequence:
+        if self.dataloader is None:
+            raise ConfigError(f"--data needs --dataloader NAME to say how to read it ({', '.join(LOADERS)})")
+        if self.data is None:
+            raise ConfigError(f"--dataloader {self.dataloader} needs --data PATH (the recording to read)")
+        if self.folder is not None:
+            raise ConfigError("give either --folder (a folder of scans) or --dataloader/--data, not both")
+        if self.bin_columns != DEFAULT_BIN_COLUMNS:
+            raise ConfigError("--bin-columns applies to --folder and --data-root scans, not to --dataloader")
+        return KissLoaderSequence(
+            self.dataloader,
+            self.data,
+            sequence=self.seq,
+            topic=self.topic,
+            poses=self.poses,
+            calib=self.calib,
+            times=self.times,
         )
 
     def indices(self, sequence: LidarSequence) -> list[int]:

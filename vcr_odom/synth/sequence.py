@@ -170,6 +170,11 @@ class SynthSequence:
         return np.arange(self.frames) * self.frame_period
 
     @property
+    def timestamps_assumed(self) -> bool:
+        """The drive's own clock: never a guess."""
+        return False
+
+    @property
     def tr_velo_to_cam(self) -> NDArray[np.float64]:
         return KITTI_TR.copy()
 
