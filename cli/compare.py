@@ -11,7 +11,8 @@ from vcr_odom.cli.options import (
     sequence_options,
     vcr_options,
 )
-from vcr_odom.cli.progress import console, frame_progress
+from vcr_odom.cli.progress import EXIT_CODES_HELP, console, exit_interrupted, frame_progress
+from vcr_odom.cli.run import given, reject_unused_options
 from vcr_odom.cli.tables import ComparisonRow, comparison_table, pair_protocol_table
 from vcr_odom.data.selection import FrameSelection
 from vcr_odom.errors import ConfigError
@@ -29,7 +30,23 @@ def _check_specs(ctx: click.Context, param: click.Parameter, specs: tuple[str, .
     return specs
 
 
-@click.command("compare", epilog=describe_methods())
+PAIRS_ONLY_OPTIONS = {"pair_points": "--pair-points", "pair_kind": "--pairs", "seed": "--seed"}
+
+
+def reject_bad_combinations(ctx: click.Context, protocol: str, specs: tuple[str, ...]) -> None:
+    """Options the chosen protocol would ignore are usage errors, found before any work."""
+    if protocol == "odometry":
+        ignored = [flag for name, flag in PAIRS_ONLY_OPTIONS.items() if given(ctx, name)]
+        if ignored:
+            raise click.UsageError(
+                f"{', '.join(ignored)} only {'applies' if len(ignored) == 1 else 'apply'} to the pairs "
+                "protocol; add --protocol pairs (or both)",
+                ctx=ctx,
+            )
+    reject_unused_options(ctx, specs)
+
+
+@click.command("compare", epilog=describe_methods() + "\n\n" + EXIT_CODES_HELP)
 @sequence_options
 @click.option(
     "--baseline",
@@ -71,11 +88,24 @@ def _check_specs(ctx: click.Context, param: click.Parameter, specs: tuple[str, .
 @initial_guess_option
 @vcr_options
 @results_option
-def compare(selection: FrameSelection, baselines: tuple[str, ...], pair_kind: str, **options: object) -> None:
-    """Run the methods on the same frames and print one table per protocol."""
+@click.pass_context
+def compare(
+    ctx: click.Context,
+    selection: FrameSelection,
+    baselines: tuple[str, ...],
+    pair_kind: str,
+    **options: object,
+) -> None:
+    """Run the methods on the same frames and print one table per protocol.
+
+    Ctrl-C stops the method in progress and skips the rest: the table shows what finished, the folder
+    is marked partial and the command exits 130.
+    """
+    methods = baselines or DEFAULT_BASELINES
+    reject_bad_combinations(ctx, str(options["protocol"]), methods)
     settings = CompareSettings(
         selection=selection,
-        methods=baselines or DEFAULT_BASELINES,
+        methods=methods,
         pair_kinds=PAIR_KINDS if pair_kind == "both" else (pair_kind,),
         **options,
     )
@@ -110,3 +140,8 @@ def print_comparison(comparison: Comparison, stride: int) -> None:
         title = f"{name} {kind} pairs ({label}): {pairs} pairs of {comparison.pair_points} points"
         console.print(pair_protocol_table(results, title))
     console.print(f"Results in {comparison.folder}")
+    if comparison.interrupted:
+        exit_interrupted(
+            f"Interrupted: the methods not shown were not run; the partial result is kept in "
+            f"{comparison.folder} (result.json: partial)."
+        )

@@ -9,6 +9,7 @@ import click
 from vcr_odom.cli.compare import print_comparison
 from vcr_odom.cli.progress import console, frame_progress
 from vcr_odom.evaluation.demo import run_demo
+from vcr_odom.results import check_output_folder
 
 
 @click.command("demo")
@@ -35,5 +36,6 @@ from vcr_odom.evaluation.demo import run_demo
 )
 def demo(frames: int, seed: int, results_dir: Path) -> None:
     """Generate a synthetic KITTI-layout sequence, run VCR-Net with both polishes and the baselines on it, print a table and write a plot."""
+    check_output_folder(results_dir, "--results-dir")  # before minutes of synthesis
     console.print(f"Generating {frames} synthetic frames (seed {seed}) in {results_dir / 'demo-data'} ...")
     print_comparison(run_demo(frames, seed, results_dir, progress=frame_progress), stride=1)

@@ -6,13 +6,15 @@ import json
 from pathlib import Path
 
 import click
+from rich.markup import escape
 
-from vcr_odom.cli.progress import console, notes
+from vcr_odom.cli.progress import EXIT_CODES_HELP, console, notes
 from vcr_odom.cli.tables import report_table
 from vcr_odom.evaluation.files import evaluate_files, write_evaluation
+from vcr_odom.results import check_output_file
 
 
-@click.command("eval")
+@click.command("eval", epilog=EXIT_CODES_HELP)
 @click.option(
     "--gt",
     "gt_path",
@@ -62,7 +64,7 @@ from vcr_odom.evaluation.files import evaluate_files, write_evaluation
     "--plot",
     "plot_path",
     type=click.Path(path_type=Path, dir_okay=False),
-    help="Write a top-down trajectory plot (PNG) and, beside it, a per-pair error plot.",
+    help="Write a top-down trajectory plot (.png) and, beside it, a per-pair error plot.",
 )
 def evaluate(
     gt_path: Path,
@@ -74,13 +76,23 @@ def evaluate(
     json_path: Path | None,
     plot_path: Path | None,
 ) -> None:
-    """KITTI drift, per-pair RMSE/MAE (and the paper's DCP-style figures), ATE and RPE."""
+    """KITTI drift, per-pair RMSE/MAE (and the paper's DCP-style figures), ATE and RPE.
+
+    Warns when --est comes from a run whose result.json says partial, or has no result.json.
+    """
+    to_stdout = json_path is not None and str(json_path) == "-"
+    if json_path is not None and not to_stdout:
+        check_output_file(json_path, "--json")
+    if plot_path is not None:
+        check_output_file(plot_path, "--plot", (".png",))
     evaluation = evaluate_files(
         gt_path, est_path, calib=calib, frames=frames, stride=stride, ate_alignment=align
     )
     for note in evaluation.notes:
         notes.print(f"[dim]{note}")
-    if json_path is not None and str(json_path) == "-":
+    for warning in evaluation.warnings:
+        notes.print(f"[yellow]warning:[/] {escape(warning)}", highlight=False)
+    if to_stdout:
         click.echo(json.dumps(evaluation.report.to_dict(include_arrays=True), indent=2))
         return
     console.print(

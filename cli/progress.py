@@ -1,4 +1,5 @@
-"""A rich progress bar for the frame loop."""
+"""The terminal side of every command: the console, a progress bar for the frame loop, warnings as
+one line each, and the exit codes (documented in ``vcr-odom --help`` and the README)."""
 
 from __future__ import annotations
 
@@ -6,7 +7,9 @@ import sys
 import warnings
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from typing import NoReturn
 
+import click
 from rich.console import Console
 from rich.progress import (
     BarColumn,
@@ -48,7 +51,31 @@ def frame_progress(description: str, total: int) -> Iterator[Callable[..., None]
 def show_warnings_on_console() -> None:
     """Print library warnings (NaN points dropped, 10 Hz assumed, ...) as one short yellow line each."""
 
-    def show(message, category, *_args, **_kwargs) -> None:
+    def show(message: Warning | str, category: type[Warning], *_args: object, **_kwargs: object) -> None:
         notes.print(f"[yellow]warning:[/] {message}", highlight=False)
 
     warnings.showwarning = show
+
+
+EXIT_DONE = 0
+EXIT_ERROR = 1
+"""The library's own error (:class:`~vcr_odom.errors.VcrOdomError`): one line naming the input."""
+EXIT_USAGE = 2
+"""A bad option or combination of options: click's own checks and the library's ``ConfigError``."""
+EXIT_INTERRUPTED = 130
+"""Ctrl-C (128 + SIGINT, as shells report it): what was done is kept, marked ``partial``."""
+
+EXIT_CODES_HELP = (
+    "\b\nExit codes:\n"
+    f"  {EXIT_DONE:<4} done\n"
+    f"  {EXIT_ERROR:<4} error: an input or output the command could not use (one line, no traceback)\n"
+    f"  {EXIT_USAGE:<4} usage: a bad option, or options that do not go together\n"
+    f"  {EXIT_INTERRUPTED:<4} interrupted (Ctrl-C): the partial result is kept, marked partial in its result.json"
+)
+
+
+def exit_interrupted(message: str) -> NoReturn:
+    """Say what was kept and leave with :data:`EXIT_INTERRUPTED` (a script must not take a run cut
+    short by Ctrl-C for a finished one)."""
+    notes.print(f"[yellow]{message}", highlight=False)
+    raise click.exceptions.Exit(EXIT_INTERRUPTED)

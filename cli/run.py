@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from pathlib import Path
 
 import click
@@ -13,16 +14,49 @@ from vcr_odom.cli.options import (
     sequence_options,
     vcr_options,
 )
-from vcr_odom.cli.progress import console, frame_progress
+from vcr_odom.cli.progress import EXIT_CODES_HELP, console, exit_interrupted, frame_progress
 from vcr_odom.cli.tables import report_table
 from vcr_odom.data.selection import FrameSelection
-from vcr_odom.odometry.factory import DEFAULT_GLOBAL_POLISH
+from vcr_odom.errors import ConfigError
+from vcr_odom.odometry.factory import DEFAULT_GLOBAL_POLISH, GLOBAL_METHODS, parse_method_spec
 from vcr_odom.odometry.polish import POLISHES
 from vcr_odom.odometry.run import RunSettings, run_sequence
 from vcr_odom.registration import METHOD_NAMES
 
+VCR_ONLY_OPTIONS = {"weights": "--weights", "vcr_passes": "--vcr-passes", "device": "--device"}
 
-@click.command("run", epilog=describe_methods())
+
+def reject_unused_options(ctx: click.Context, specs: Iterable[str]) -> None:
+    """A VCR-Net option given for methods that are not VCR-Net, or ``--consult`` without a polished
+    global method, would be silently ignored: a usage error instead, before any work."""
+    try:
+        parsed = [parse_method_spec(spec) for spec in specs]
+    except ConfigError:
+        return  # the method itself is the mistake; its own check says so
+    unused = []
+    if not any(name == "vcr" for name, _ in parsed):
+        unused += [flag for name, flag in VCR_ONLY_OPTIONS.items() if given(ctx, name)]
+    if given(ctx, "consult") and not any(n in GLOBAL_METHODS and p != "none" for n, p in parsed):
+        unused.append("--consult")
+    if unused:
+        raise click.UsageError(
+            f"{', '.join(unused)} only {'applies' if len(unused) == 1 else 'apply'} to "
+            + ("a polished global method (vcr, fpfh)" if unused == ["--consult"] else "VCR-Net (vcr)")
+            + f", and no method given is one: {', '.join(specs)}",
+            ctx=ctx,
+        )
+
+
+def given(ctx: click.Context, name: str) -> bool:
+    """Whether the user gave option ``name`` (on the command line or from its environment variable)."""
+    source = ctx.get_parameter_source(name)
+    return source is not None and source not in (
+        click.core.ParameterSource.DEFAULT,
+        click.core.ParameterSource.DEFAULT_MAP,
+    )
+
+
+@click.command("run", epilog=describe_methods() + "\n\n" + EXIT_CODES_HELP)
 @sequence_options
 @click.option(
     "--method",
@@ -44,7 +78,8 @@ from vcr_odom.registration import METHOD_NAMES
 @click.option(
     "--save-map",
     type=click.Path(path_type=Path, dir_okay=False),
-    help="Accumulate the registered scans into a voxel map and write it (.ply or .pcd).",
+    help="Accumulate the registered scans into a voxel map and write it (.ply or .pcd; checked "
+    "before the run starts).",
 )
 @click.option(
     "--map-voxel", type=click.FloatRange(min=0.05), default=0.5, show_default=True, help="Map voxel size [m]."
@@ -52,17 +87,23 @@ from vcr_odom.registration import METHOD_NAMES
 @initial_guess_option
 @vcr_options
 @results_option
-def run(selection: FrameSelection, **options: object) -> None:
-    """Estimate the trajectory of a sequence and write it (KITTI + TUM), metrics and a plot."""
+@click.pass_context
+def run(ctx: click.Context, selection: FrameSelection, **options: object) -> None:
+    """Estimate the trajectory of a sequence and write it (KITTI + TUM), metrics and a plot.
+
+    The result folder's result.json says whether it is complete or partial (Ctrl-C, an error part-way,
+    or a run killed after a checkpoint); the trajectory files always agree with it.
+    """
     settings = RunSettings(selection=selection, **options)
+    reject_unused_options(ctx, [settings.method if settings.polish is None else settings.spec])
     outcome = run_sequence(settings, progress=frame_progress)
     result, report = outcome.run, outcome.report
+    if outcome.folder is None:
+        exit_interrupted("Interrupted before the first frame; no result folder kept.")
     if outcome.voxel_map is not None:
         console.print(
             f"map of {len(outcome.voxel_map)} points ({settings.map_voxel:g} m voxels) written to {settings.save_map}"
         )
-    if result.interrupted:
-        console.print(f"[yellow]Interrupted after {len(result.frame_indices)} frames; partial results kept.")
     if result.flagged_frames:
         console.print(
             f"[yellow]{len(result.flagged_frames)} frame(s) flagged (implausible motion replaced by the "
@@ -76,3 +117,8 @@ def run(selection: FrameSelection, **options: object) -> None:
     console.print(
         f"{len(result.frame_indices)} frames at {result.frames_per_second:.1f} fps; results in {outcome.folder}"
     )
+    if result.interrupted:
+        exit_interrupted(
+            f"Interrupted after {len(result.frame_indices)} frames; the partial result is kept in "
+            f"{outcome.folder} (result.json: partial)."
+        )

@@ -6,7 +6,8 @@ from pathlib import Path
 
 import click
 
-from vcr_odom.cli.progress import console, frame_progress
+from vcr_odom.cli.progress import EXIT_CODES_HELP, console, frame_progress
+from vcr_odom.results import check_output_folder
 from vcr_odom.synth import SCENE_STYLES, SENSOR_MODELS, SEQUENCE_NAME, generate_sequence
 
 
@@ -16,7 +17,7 @@ def _check_seq(ctx: click.Context, param: click.Parameter, value: str) -> str:
     return value
 
 
-@click.command("synth")
+@click.command("synth", epilog=EXIT_CODES_HELP)
 @click.option(
     "--out",
     type=click.Path(path_type=Path, file_okay=False),
@@ -93,7 +94,12 @@ def synth(
     stops: bool,
     rate_hz: float,
 ) -> None:
-    """Generate a synthetic LiDAR sequence with exact ground truth (the built-in data set)."""
+    """Generate a synthetic LiDAR sequence with exact ground truth (the built-in data set).
+
+    The sequence is written beside its place and renamed into it, so an interrupted synth over an
+    existing sequence leaves the old or the new one, never a mix.
+    """
+    check_output_folder(out, "--out")
     with frame_progress(f"synth seed {seed}", frames) as advance:
         written = generate_sequence(
             out,

@@ -24,12 +24,19 @@ from numpy.typing import ArrayLike, NDArray
 
 from vcr_odom.errors import ConfigError, DataError
 from vcr_odom.io import temporary_sibling
+from vcr_odom.results import check_output_file
 
 MAP_SUFFIXES = (".ply", ".pcd")
 """Extensions :meth:`VoxelMap.save` writes; open3d picks the format from the extension."""
 
 _MIN_MERGE = 100_000
 """Queue size below which merging is not worth its cost (avoids re-sorting a small map every frame)."""
+
+
+def check_map_path(path: str | os.PathLike[str], option: str = "--save-map") -> Path:
+    """Where :meth:`VoxelMap.save` will write, checked before a run starts (extension, a folder that
+    can be written): a wrong ``--save-map`` found after an hour's run would waste the run."""
+    return check_output_file(path, option, MAP_SUFFIXES)
 
 
 class VoxelMap:

@@ -1,6 +1,18 @@
 """Result folders: one timestamped folder per command, a ``latest`` link, and the provenance to redo it.
 
-Every file is written atomically, so a folder interrupted by Ctrl-C holds only complete files.
+A result folder is a transaction. What a command writes about its trajectory (the trajectory files,
+``frames.json``, the scores) is published as one *unit*: written into a fresh hidden folder
+``.unit-NNNNNN`` with the marker :data:`MARKER` last, then made current by swapping one symlink,
+``.unit``, which the folder's visible files (``trajectory_kitti.txt -> .unit/trajectory_kitti.txt``,
+...) point through. Swapping a symlink is one atomic rename, so a reader, or a folder left behind by a
+SIGKILL at any moment, sees either the previous unit or the new one, never trajectory files of one
+and ``frames.json`` of the other. Where the file system has no symlinks, each file is replaced
+atomically and the marker last: still never half a file, but no longer one unit.
+
+The marker says whether the unit is ``complete`` or ``partial`` (a checkpoint, Ctrl-C, an error
+part-way), with how many frames it holds and why. A folder is itself made in a hidden staging folder
+and renamed into place with its first marker, so no folder without a marker ever appears, and
+``latest`` only moves to a folder that holds a trajectory.
 """
 
 from __future__ import annotations
@@ -8,13 +20,18 @@ from __future__ import annotations
 import json
 import os
 import platform
+import secrets
+import shutil
 import subprocess
 import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from datetime import datetime
 from importlib import metadata
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
+from vcr_odom.errors import ConfigError, DataError
 from vcr_odom.io import atomic_write_text
 from vcr_odom.jsonsafe import json_safe
 
@@ -30,39 +47,253 @@ TRACKED_DISTRIBUTIONS = (
     "rich",
 )
 
+MARKER = "result.json"
+"""Written last into every unit: ``{"status", "frames_done", "frames_selected", "reason"}``."""
 
-def create_result_folder(root: str | os.PathLike[str], label: str) -> Path:
-    """Make ``<root>/<YYYYmmdd-HHMMSS>_<label>`` (suffixed if taken) and point ``<root>/latest`` at it."""
-    root = Path(root)
-    root.mkdir(parents=True, exist_ok=True)
-    stem = f"{datetime.now().strftime('%Y%m%d-%H%M%S')}_{_safe(label)}"
-    folder = root / stem
-    suffix = 1
-    while True:
-        try:
-            folder.mkdir()
+Status = Literal["complete", "partial"]
+_UNIT_LINK = ".unit"
+_UNIT_PREFIX = ".unit-"
+
+
+# -- checking where results go, before any work ------------------------------------------------------
+
+
+def check_output_folder(path: str | os.PathLike[str], option: str) -> Path:
+    """``path`` is, or can be made as, a writable folder; else a ConfigError naming ``option``.
+
+    Why before the work: a run that finds out at its end that it cannot write has wasted the run.
+    """
+    path = Path(path).expanduser()
+    if path.exists() and not path.is_dir():
+        raise ConfigError(f"{option} {path}: exists and is not a folder")
+    _check_creatable(path, option)
+    return path
+
+
+def check_output_file(
+    path: str | os.PathLike[str], option: str, suffixes: tuple[str, ...] | None = None
+) -> Path:
+    """``path`` can be written as a file (with one of ``suffixes``, when given); else a ConfigError."""
+    path = Path(path).expanduser()
+    if suffixes is not None and path.suffix.lower() not in suffixes:
+        raise ConfigError(
+            f"{option} {path}: expected a file ending in {' or '.join(suffixes)}, "
+            f"not {path.suffix or 'no extension'!r}"
+        )
+    if path.is_dir():
+        raise ConfigError(f"{option} {path}: is a folder; give a file name")
+    _check_creatable(path.parent, option, for_file=path)
+    return path
+
+
+def _check_creatable(folder: Path, option: str, for_file: Path | None = None) -> None:
+    """The nearest existing ancestor of ``folder`` must be a writable folder (it is where the rest of
+    the path will be made)."""
+    named = for_file if for_file is not None else folder
+    existing = folder.absolute()
+    while not existing.exists():
+        if existing.parent == existing:
             break
-        except FileExistsError:
+        existing = existing.parent
+    if not existing.is_dir():
+        raise ConfigError(f"{option} {named}: {existing} is a file, not a folder")
+    if existing.exists() and not os.access(existing, os.W_OK | os.X_OK):
+        raise ConfigError(f"{option} {named}: {existing} is not writable")
+    if folder.exists() and not os.access(folder, os.W_OK | os.X_OK):
+        raise ConfigError(f"{option} {named}: {folder} is not writable")
+
+
+# -- folders --------------------------------------------------------------------------------------
+
+
+def create_result_folder(
+    root: str | os.PathLike[str],
+    label: str,
+    config: dict[str, Any] | None = None,
+    frames_selected: int = 0,
+) -> Path:
+    """Make ``<root>/<YYYYmmdd-HHMMSS>_<label>`` (suffixed if taken) holding ``config.json`` (the
+    :func:`provenance` of ``config``, when given) and a first ``partial`` marker with no frames.
+
+    The folder is filled in a hidden staging folder and renamed into place, so it never exists without
+    its marker. ``latest`` is not moved: see :func:`point_latest_at`.
+    """
+    root = check_output_folder(root, "--results-dir")
+    root.mkdir(parents=True, exist_ok=True)
+    _remove_abandoned_staging(root)
+    stem = f"{datetime.now().strftime('%Y%m%d-%H%M%S')}_{_safe(label)}"
+    staging = root / f".{stem}.{os.getpid()}.{secrets.token_hex(4)}.creating"
+    staging.mkdir()
+    try:
+        if config is not None:
+            write_json(staging / "config.json", provenance(config))
+        with result_unit(staging) as unit:
+            write_marker(unit, "partial", 0, frames_selected, "started: no frame finished yet")
+        suffix = 1
+        folder = root / stem
+        while True:
+            if not folder.exists():
+                try:
+                    os.rename(staging, folder)
+                    return folder
+                except OSError:  # taken between the check and the rename
+                    pass
             suffix += 1
             folder = root / f"{stem}-{suffix}"
-    _point_latest_at(root, folder)
-    return folder
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+
+
+def _remove_abandoned_staging(root: Path) -> None:
+    """Staging folders whose process is gone (killed while making its folder): hidden, but litter."""
+    for staging in root.glob(".*.creating"):
+        try:
+            pid = int(staging.name.split(".")[-3])
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            shutil.rmtree(staging, ignore_errors=True)
+        except (ValueError, IndexError, OSError):
+            continue
+
+
+def remove_result_folder(folder: str | os.PathLike[str]) -> None:
+    """Delete a result folder that holds nothing worth keeping (a run that failed before its first
+    frame); ``latest`` never pointed at it."""
+    shutil.rmtree(folder, ignore_errors=True)
 
 
 def _safe(label: str) -> str:
     return "".join(c if c.isalnum() or c in "-_." else "-" for c in label).strip("-") or "run"
 
 
-def _point_latest_at(root: Path, folder: Path) -> None:
-    """Swap the ``latest`` symlink atomically (make a new link, then rename over the old one)."""
+def holds_trajectory(folder: str | os.PathLike[str]) -> bool:
+    """A trajectory with at least one pose in ``folder`` or one of its sub-folders (a comparison)."""
+    folder = Path(folder)
+    candidates = [folder / "trajectory_kitti.txt", *folder.glob("*/trajectory_kitti.txt")]
+    return any(path.is_file() and path.stat().st_size > 0 for path in candidates)
+
+
+def point_latest_at(root: str | os.PathLike[str], folder: str | os.PathLike[str]) -> bool:
+    """Swap ``<root>/latest`` atomically to ``folder`` (a new link renamed over the old one), but only
+    once ``folder`` holds a trajectory: ``latest`` is what a user scores next. Returns whether it moved."""
+    root, folder = Path(root), Path(folder)
+    if not holds_trajectory(folder):
+        return False
     link = root / "latest"
-    temporary = root / f".latest.{os.getpid()}"
+    temporary = root / f".latest.{os.getpid()}.{secrets.token_hex(4)}"
     try:
-        temporary.unlink(missing_ok=True)
         temporary.symlink_to(folder.name, target_is_directory=True)
         os.replace(temporary, link)
     except OSError:  # file systems without symlinks: the folder itself is still complete
         temporary.unlink(missing_ok=True)
+        return False
+    return True
+
+
+# -- units and markers ------------------------------------------------------------------------------
+
+
+@contextmanager
+def result_unit(folder: str | os.PathLike[str]) -> Iterator[Path]:
+    """Yields an empty hidden folder for the files of one unit; on leaving without an error they are
+    published together (see the module's docstring). Write the marker (:func:`write_marker`) last.
+
+    On an error (or Ctrl-C) inside, nothing is published and the folder keeps its previous unit.
+    """
+    folder = Path(folder)
+    staging = _new_unit_folder(folder)
+    try:
+        yield staging
+        if not (staging / MARKER).is_file():
+            raise RuntimeError(f"a result unit is published with its marker ({MARKER}) written last")
+        _publish(folder, staging)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+
+
+def _new_unit_folder(folder: Path) -> Path:
+    suffixes = [p.name[len(_UNIT_PREFIX) :] for p in folder.glob(f"{_UNIT_PREFIX}*")]
+    number = max((int(s) for s in suffixes if s.isdigit()), default=0) + 1
+    while True:
+        staging = folder / f"{_UNIT_PREFIX}{number:06d}"
+        try:
+            staging.mkdir()
+            return staging
+        except FileExistsError:
+            number += 1
+
+
+def _publish(folder: Path, staging: Path) -> None:
+    """Point every visible name at ``.unit/<name>``, then swap ``.unit`` to ``staging`` in one rename."""
+    names = sorted(p.name for p in staging.iterdir())
+    token = f"{os.getpid()}.{secrets.token_hex(4)}"
+    try:
+        for name in names:
+            visible = folder / name
+            if not visible.is_symlink():
+                temporary = folder / f".{name}.{token}.link"
+                temporary.symlink_to(Path(_UNIT_LINK) / name)
+                os.replace(temporary, visible)
+        temporary = folder / f"{_UNIT_LINK}.{token}.link"
+        temporary.symlink_to(staging.name, target_is_directory=True)
+        os.replace(temporary, folder / _UNIT_LINK)
+    except OSError:  # no symlinks here: each file atomically, the marker last
+        for link in folder.glob(f".*.{token}.link"):
+            link.unlink(missing_ok=True)
+        for name in [n for n in names if n != MARKER] + [MARKER]:
+            os.replace(staging / name, folder / name)
+        shutil.rmtree(staging, ignore_errors=True)
+        return
+    for old in folder.glob(f"{_UNIT_PREFIX}*"):
+        if old != staging:
+            shutil.rmtree(old, ignore_errors=True)
+
+
+def write_marker(
+    folder: str | os.PathLike[str],
+    status: Status,
+    frames_done: int,
+    frames_selected: int,
+    reason: str = "",
+    **extra: Any,
+) -> Path:
+    """The marker: ``complete`` when every selected frame was done and everything written, else
+    ``partial`` with the ``reason`` (a checkpoint of a run still going, Ctrl-C, an error)."""
+    payload = {
+        "status": status,
+        "frames_done": int(frames_done),
+        "frames_selected": int(frames_selected),
+        "reason": reason,
+        **extra,
+        "written": datetime.now().isoformat(timespec="seconds"),
+    }
+    return write_json(Path(folder) / MARKER, payload)
+
+
+def read_marker(folder: str | os.PathLike[str]) -> dict[str, Any] | None:
+    """The folder's marker, or None where it has none (not a vcr-odom result, or an older one)."""
+    path = Path(folder) / MARKER
+    if not path.is_file():
+        return None
+    try:
+        marker = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as error:
+        raise DataError(f"{path}: unreadable result marker: {error}") from error
+    if not isinstance(marker, dict) or marker.get("status") not in ("complete", "partial"):
+        raise DataError(f"{path}: not a result marker (no 'status': 'complete' or 'partial')")
+    return marker
+
+
+def interruption_reason(error: BaseException) -> str:
+    """What a ``partial`` marker says about why a command stopped."""
+    if isinstance(error, KeyboardInterrupt):
+        return "interrupted (Ctrl-C)"
+    return f"stopped by an error: {type(error).__name__}: {error}".strip()
+
+
+# -- provenance -------------------------------------------------------------------------------------
 
 
 def git_revision() -> str:

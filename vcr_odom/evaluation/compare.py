@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any, Literal
 
@@ -16,6 +17,7 @@ from pydantic import Field
 
 from vcr_odom.data.base import LidarSequence
 from vcr_odom.data.selection import FrameSelection
+from vcr_odom.errors import ConfigError
 from vcr_odom.evaluation.pairs import PAIR_KINDS, PairProtocolResult, evaluate_pair_protocol, pair_sets
 from vcr_odom.evaluation.pairs_polish import PAIR_POLISHES
 from vcr_odom.metrics import EvaluationReport
@@ -25,10 +27,20 @@ from vcr_odom.odometry.factory import DEFAULT_CONSULT, build_odometry, canonical
 from vcr_odom.odometry.limits import InitialGuess
 from vcr_odom.odometry.loop import OdometryRun
 from vcr_odom.odometry.outputs import ground_truth_for, run_summary
-from vcr_odom.odometry.run import ProgressFactory, run_and_save, vcr_options
+from vcr_odom.odometry.run import ProgressFactory, open_selection, run_and_save, vcr_options
 from vcr_odom.plots import plot_trajectories
 from vcr_odom.preprocess import PreprocessConfig
-from vcr_odom.results import create_result_folder, provenance, write_json
+from vcr_odom.registration.base import SequentialOdometry
+from vcr_odom.results import (
+    check_output_folder,
+    create_result_folder,
+    interruption_reason,
+    point_latest_at,
+    remove_result_folder,
+    result_unit,
+    write_json,
+    write_marker,
+)
 from vcr_odom.settings import Settings
 
 DEFAULT_BASELINES = ("icp10", "icp", "fpfh", "kiss-icp")
@@ -72,7 +84,10 @@ class MethodOutcome:
 
 @dataclass
 class Comparison:
-    """What a comparison produced: the rows of each protocol and notes on what was left out."""
+    """What a comparison produced: the rows of each protocol and notes on what was left out.
+
+    ``interrupted``: Ctrl-C stopped it (the rows hold what finished; the folder is marked partial).
+    """
 
     folder: Path
     sequence: LidarSequence
@@ -81,63 +96,141 @@ class Comparison:
     pairs: dict[str, dict[str, PairProtocolResult]] = field(default_factory=dict)
     pair_points: int = 0
     notes: list[str] = field(default_factory=list)
+    interrupted: bool = False
 
 
 def run_comparison(settings: CompareSettings, progress: ProgressFactory | None = None) -> Comparison:
-    """One result folder; the odometry rows, the pairs tables, or both."""
-    for spec in settings.methods:
-        canonical_spec(spec)  # a bad name fails before any work
-    sequence = settings.selection.open()
+    """One result folder; the odometry rows, the pairs tables, or both.
+
+    Everything that can be wrong with the request (a method name, the output folder, a combination
+    that would leave a protocol with nothing to do, unreadable weights) is found before the folder is
+    made and any method runs. The folder's own unit (``compare.json``, ``pairs.json``, the overlay
+    plot and the marker) is published at the end, or, stopped part-way, with a ``partial`` marker.
+    """
+    specs = list(dict.fromkeys(canonical_spec(s) for s in settings.methods))  # a bad name fails here
+    check_output_folder(settings.results_dir, "--results-dir")
+    sequence = open_selection(settings.selection)
     indices = settings.selection.indices(sequence)
+    kinds = pair_kinds_to_run(settings, sequence) if settings.protocol != "odometry" else ()
+    odometries = {}
+    if settings.protocol in ("odometry", "both"):
+        odometries = {
+            spec: build_odometry(
+                spec,
+                initial_guess=settings.initial_guess,
+                consult=settings.consult,
+                **settings.method_options(spec),
+            )
+            for spec in specs
+        }
+    if kinds:
+        pair_input_range([pair_spec(s) for s in settings.methods if works_on_pairs(s)], settings.weights)
     folder = create_result_folder(
-        settings.results_dir, f"compare_{sequence.name}_stride{settings.selection.stride}"
-    )
-    write_json(
-        folder / "config.json",
-        provenance({"command": "compare", "sequence": sequence.name, **settings.to_dict()}),
+        settings.results_dir,
+        f"compare_{sequence.name}_stride{settings.selection.stride}",
+        {"command": "compare", "sequence": sequence.name, **settings.to_dict()},
+        frames_selected=len(indices),
     )
     comparison = Comparison(folder, sequence, indices)
-    if settings.protocol in ("odometry", "both"):
-        comparison.odometry = compare_methods(settings, sequence, indices, folder, progress)
-    if settings.protocol in ("pairs", "both"):
-        compare_pairs(settings, comparison, progress)
+    try:
+        if odometries:
+            comparison.odometry = compare_methods(sequence, indices, folder, odometries, progress)
+            comparison.interrupted = any(o.run.interrupted for o in comparison.odometry)
+        if kinds and not comparison.interrupted:
+            compare_pairs(settings, comparison, progress, kinds)
+    except BaseException as error:
+        if comparison.odometry or comparison.pairs:
+            publish_comparison(comparison, interruption_reason(error))
+        else:
+            remove_result_folder(folder)
+        raise
+    publish_comparison(comparison, "interrupted (Ctrl-C)" if comparison.interrupted else "")
     return comparison
 
 
+def pair_kinds_to_run(settings: CompareSettings, sequence: LidarSequence) -> tuple[str, ...]:
+    """The pair kinds the pairs protocol can score here; a ConfigError where it could score nothing
+    (every method needs a map, or only consecutive pairs were asked for and there is no ground truth)."""
+    if not any(works_on_pairs(spec) for spec in settings.methods):
+        raise ConfigError(
+            f"--protocol {settings.protocol}: none of the methods ({', '.join(settings.methods)}) works "
+            "on isolated pairs (kiss-icp, as a method or a polish, needs a sequence's local map)"
+        )
+    kinds = tuple(settings.pair_kinds)
+    if sequence.gt_poses is None and "consecutive" in kinds:
+        if kinds == ("consecutive",):
+            raise ConfigError(
+                f"--pairs consecutive: {sequence.name} has no ground-truth poses to score them with; "
+                "give --poses, or use --pairs same-scan"
+            )
+        kinds = tuple(k for k in kinds if k != "consecutive")
+    return kinds
+
+
 def compare_methods(
-    settings: CompareSettings,
     sequence: LidarSequence,
     frame_indices: list[int],
     folder: Path,
+    odometries: dict[str, Odometry | SequentialOdometry],
     progress: ProgressFactory | None = None,
 ) -> list[MethodOutcome]:
-    """Each method over the same frames (one sub-folder each), trajectories overlaid in one plot.
+    """Each method over the same frames, one sub-folder each (itself a result unit, see
+    :func:`~vcr_odom.odometry.run.run_and_save`).
 
-    Ctrl-C stops the method in progress and skips the rest; what finished is kept and plotted.
+    Ctrl-C stops the method in progress and skips the rest; what finished is kept. ``latest`` moves to
+    the comparison once its first method holds a trajectory.
     """
     outcomes: list[MethodOutcome] = []
-    for spec in dict.fromkeys(canonical_spec(s) for s in settings.methods):
-        odometry = build_odometry(spec, initial_guess=settings.initial_guess, **settings.method_options(spec))
+    for spec, odometry in odometries.items():
         needs_guess = odometry.registrar.needs_initial_guess if isinstance(odometry, Odometry) else True
+        on_saved = partial(point_latest_at, folder.parent, folder)
+        (folder / spec).mkdir(exist_ok=True)  # no marker until its first unit; the comparison's says partial
         with _progress(progress, spec, len(frame_indices)) as advance:
-            run, report = run_and_save(sequence, odometry, frame_indices, folder / spec, progress=advance)
+            run, report = run_and_save(
+                sequence, odometry, frame_indices, folder / spec, progress=advance, on_saved=on_saved
+            )
         outcomes.append(MethodOutcome(spec, needs_guess, run, report))
         if run.interrupted:
             break
-    if outcomes:
-        stride = frame_indices[1] - frame_indices[0] if len(frame_indices) > 1 else 1
-        plot_trajectories(
-            folder / "trajectories.png",
-            {o.method: o.run.poses for o in outcomes if len(o.run.poses)},
-            ground_truth_for(sequence, frame_indices),
-            title=f"{sequence.name}, stride {stride}",
-        )
-        rows = {
-            o.method: {"run": run_summary(o.run), **(o.report.to_dict() if o.report else {})}
-            for o in outcomes
-        }
-        write_json(folder / "compare.json", rows)
     return outcomes
+
+
+def publish_comparison(comparison: Comparison, reason: str = "") -> None:
+    """The comparison's own unit: ``compare.json`` and the overlay plot (odometry rows), ``pairs.json``,
+    then the marker, ``complete`` only when nothing stopped it."""
+    folder, sequence, indices = comparison.folder, comparison.sequence, comparison.frame_indices
+    rows = comparison.odometry
+    done = min((len(o.run.frame_indices) for o in rows), default=0)
+    with result_unit(folder) as unit:
+        if rows:
+            stride = indices[1] - indices[0] if len(indices) > 1 else 1
+            plot_trajectories(
+                unit / "trajectories.png",
+                {o.method: o.run.poses for o in rows if len(o.run.poses)},
+                ground_truth_for(sequence, indices),
+                title=f"{sequence.name}, stride {stride}",
+            )
+            summary = {
+                o.method: {"run": run_summary(o.run), **(o.report.to_dict() if o.report else {})}
+                for o in rows
+            }
+            write_json(unit / "compare.json", summary)
+        if comparison.pairs:
+            pairs = {
+                kind: {name: r.to_dict() for name, r in results.items()}
+                for kind, results in comparison.pairs.items()
+            }
+            write_json(unit / "pairs.json", pairs)
+        write_marker(
+            unit,
+            "partial" if reason else "complete",
+            done if rows else len(indices),
+            len(indices),
+            reason,
+            methods_done=[o.method for o in rows if not o.run.interrupted],
+            pair_kinds_done=list(comparison.pairs),
+        )
+    point_latest_at(folder.parent, folder)
 
 
 def works_on_pairs(spec: str) -> bool:
@@ -153,9 +246,12 @@ def pair_spec(spec: str) -> str:
 
 
 def compare_pairs(
-    settings: CompareSettings, comparison: Comparison, progress: ProgressFactory | None
+    settings: CompareSettings,
+    comparison: Comparison,
+    progress: ProgressFactory | None,
+    kinds: tuple[str, ...] | None = None,
 ) -> None:
-    """One table per pair kind into ``comparison.pairs``; ``pairs.json`` maps kind -> method -> figures."""
+    """One table per pair kind into ``comparison.pairs`` (``kinds``: from :func:`pair_kinds_to_run`)."""
     specs = list(dict.fromkeys(pair_spec(s) for s in settings.methods if works_on_pairs(s)))
     left_out = [s for s in settings.methods if not works_on_pairs(s)]
     if left_out:
@@ -163,11 +259,11 @@ def compare_pairs(
             f"left out of the pairs protocol: {', '.join(left_out)} (kiss-icp, as a method or a polish, "
             "needs a sequence's local map)."
         )
-    kinds = tuple(settings.pair_kinds)
     sequence = comparison.sequence
-    if "consecutive" in kinds and sequence.gt_poses is None:
+    if kinds is None:
+        kinds = pair_kinds_to_run(settings, sequence)
+    if sequence.gt_poses is None and "consecutive" in settings.pair_kinds:
         comparison.notes.append(f"no consecutive-pairs table: {sequence.name} has no ground-truth poses")
-        kinds = tuple(k for k in kinds if k != "consecutive")
     if not kinds or not specs:
         return
     points = settings.pair_points or default_pair_points(specs, settings.weights)
@@ -188,13 +284,6 @@ def compare_pairs(
         with _progress(progress, f"registering {kind} pairs", len(pairs) * len(specs)) as advance:
             results = evaluate_pair_protocol(specs, pairs, options=options, progress=lambda *_: advance())
         comparison.pairs[kind] = results
-    write_json(
-        comparison.folder / "pairs.json",
-        {
-            kind: {name: r.to_dict() for name, r in results.items()}
-            for kind, results in comparison.pairs.items()
-        },
-    )
 
 
 def _progress(factory: ProgressFactory | None, title: str, total: int) -> AbstractContextManager[Any]:

@@ -1,21 +1,32 @@
-"""Score trajectory files: load, put both in one frame, match frames, then :func:`metrics.evaluate`."""
+"""Score trajectory files: load, put both in one frame, match frames, then :func:`metrics.evaluate`.
+
+A score that looks right but is not is worse than an error, so what would silently skew it is an
+error naming the file (a calibration whose ``Tr`` is not rigid, a file that is not text), and an
+estimate from a run that did not finish gets a warning (its folder's result marker).
+"""
 
 from __future__ import annotations
 
 import json
+import os
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
 
+from vcr_odom.data.scans import read_tr
 from vcr_odom.data.selection import select_frames
 from vcr_odom.errors import DataError
 from vcr_odom.geometry import camera_to_lidar_poses, normalise_to_first
-from vcr_odom.io import read_kitti_calib, read_kitti_poses
+from vcr_odom.io import read_kitti_poses
 from vcr_odom.metrics import AteAlignment, EvaluationReport, evaluate
 from vcr_odom.plots import plot_pair_errors, plot_trajectories
-from vcr_odom.results import write_json
+from vcr_odom.results import MARKER, read_marker, write_json
+
+T = TypeVar("T")
 
 
 @dataclass
@@ -25,6 +36,8 @@ class FileEvaluation:
     gt: NDArray[np.float64]
     frame: str
     notes: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+    """What makes the figures doubtful (an estimate from a run marked partial, or with no marker)."""
 
 
 def evaluate_files(
@@ -41,9 +54,10 @@ def evaluate_files(
     When the estimate covers only some ground-truth frames (``run --frames/--stride``), say which with
     ``frames``/``stride``, or keep the run's ``frames.json`` beside the estimate and it is used.
     """
-    gt = read_kitti_poses(gt_path)
-    est = read_kitti_poses(est_path)
+    gt = _as_text(read_kitti_poses, gt_path, "poses")
+    est = _as_text(read_kitti_poses, est_path, "poses")
     notes: list[str] = []
+    warnings = estimate_warnings(est_path)
     indices = _frame_indices(len(gt), est_path, frames, stride, notes)
     gt = gt[indices]
     if len(est) != len(gt):
@@ -53,9 +67,10 @@ def evaluate_files(
         )
     frame = "as given (no --calib)"
     if calib is not None:
-        tr = read_kitti_calib(calib).get("Tr")
-        if tr is None:
-            raise DataError(f"{calib} has no 'Tr' entry (velodyne -> camera) to convert the poses with")
+        # The same check as run's: a Tr that is not rigid (a typo, an all-zero line) would give
+        # plausible-looking but wrong figures.
+        tr = _as_text(lambda path: read_tr(path, required=True), calib, "calibration")
+        assert tr is not None
         gt, est = camera_to_lidar_poses(gt, tr), camera_to_lidar_poses(est, tr)
         frame = "LiDAR frame"
     return FileEvaluation(
@@ -64,7 +79,41 @@ def evaluate_files(
         gt=normalise_to_first(gt),
         frame=frame,
         notes=notes,
+        warnings=warnings,
     )
+
+
+def _as_text(reader: Callable[[Path], T], path: Path, what: str) -> T:
+    """``reader(path)``, with a file that is not UTF-8 text reported as a DataError naming it."""
+    try:
+        return reader(path)
+    except UnicodeDecodeError as error:
+        raise DataError(
+            f"{path}: not a text {what} file (byte 0x{error.object[error.start]:02x} at offset "
+            f"{error.start} is not UTF-8)"
+        ) from None
+
+
+def estimate_warnings(est_path: Path) -> list[str]:
+    """Why the estimate may not be a finished run's: its folder's result marker says ``partial``, or
+    there is none (not written by ``vcr-odom run``, or by a version before markers)."""
+    folder = est_path.parent
+    try:
+        marker = read_marker(folder)
+    except DataError as error:
+        return [f"{error}; cannot tell whether {est_path.name} is a finished run's"]
+    if marker is None:
+        return [
+            f"{os.path.join(folder, MARKER)} not found: cannot tell whether {est_path.name} is a finished "
+            "run's (it was not written by this version of vcr-odom run)"
+        ]
+    if marker["status"] != "complete":
+        done, selected = marker.get("frames_done"), marker.get("frames_selected")
+        return [
+            f"{est_path} is from a run marked partial ({done} of {selected} frames): "
+            f"{marker.get('reason') or 'no reason given'}"
+        ]
+    return []
 
 
 def _frame_indices(

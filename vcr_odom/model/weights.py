@@ -24,6 +24,25 @@ from vcr_odom.model.config import PRESETS, VcrConfig
 from vcr_odom.model.network import VCRNet
 
 FORMAT = "vcr-odom-weights/1"
+
+CONFIG_LIMITS: dict[str, int] = {
+    "num_points": 16_384,
+    "k": 256,
+    "point_dim": 4096,
+    "graph_dim": 4096,
+    "spatial_dim": 4096,
+    "feature_dim": 4096,
+    "heads": 64,
+    "ff_dim": 16_384,
+    "top_j": 1024,
+    "robust_iterations": 1000,
+    "consensus_hypotheses": 1_000_000,
+}
+"""Upper bounds on a stored :class:`VcrConfig`'s sizes, checked before a model is built from it.
+
+Why: the sizes come from a file, and a corrupt or hostile header (``num_points: 1e8``) would
+otherwise have the network try to allocate tens of gigabytes (the attention is N x N) before anything
+says the file is wrong. Each bound is 16x or more the ``paper`` preset's value."""
 WEIGHTS_DIR = Path(str(resources.files("vcr_odom.weights")))
 """The shipped weights: the repository's ``weights/`` folder, installed as the package ``vcr_odom.weights``."""
 
@@ -82,7 +101,37 @@ def read_weights(path: str | os.PathLike[str]) -> tuple[dict[str, torch.Tensor],
         metadata = json.loads(header.get("metadata", "{}"))
     except (json.JSONDecodeError, ConfigError, TypeError) as error:
         raise DataError(f"{path}: the stored model configuration is invalid: {error}") from error
+    check_config_limits(path, config)
+    check_finite(path, tensors)
     return tensors, config, metadata
+
+
+def check_config_limits(path: Path, config: VcrConfig) -> None:
+    """DataError naming every size of ``config`` beyond :data:`CONFIG_LIMITS`."""
+    stored = config.to_dict()
+    over = [
+        f"{name} = {stored[name]!r} (at most {limit})"
+        for name, limit in CONFIG_LIMITS.items()
+        if isinstance(stored.get(name), int) and stored[name] > limit
+    ]
+    if over:
+        raise DataError(
+            f"{path}: the stored model configuration asks for sizes no VCR-Net uses ({'; '.join(over)}); "
+            "the file is corrupt or not made by vcr-odom"
+        )
+
+
+def check_finite(path: Path, tensors: dict[str, torch.Tensor]) -> None:
+    """DataError naming the tensors holding NaN or inf: such a network returns NaN transforms (or fails
+    deep in an SVD) on every pair, so it is refused where the file is read."""
+    bad = [
+        name
+        for name, tensor in sorted(tensors.items())
+        if tensor.is_floating_point() and not bool(torch.isfinite(tensor).all())
+    ]
+    if bad:
+        shown = ", ".join(bad[:5]) + (f" and {len(bad) - 5} more" if len(bad) > 5 else "")
+        raise DataError(f"{path}: weights hold NaN or inf values (in {shown}); the file is corrupt")
 
 
 def load_weights(

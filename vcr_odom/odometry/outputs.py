@@ -1,4 +1,10 @@
-"""What a run leaves in its result folder: trajectory files, a summary, periodic checkpoints."""
+"""What a run leaves in its result folder: trajectory files, a summary, periodic checkpoints.
+
+The trajectory files (``trajectory_kitti.txt``, ``trajectory_tum.txt``) and ``frames.json`` are one
+unit with the result marker (:func:`vcr_odom.results.result_unit`): a checkpoint publishes all three
+with a ``partial`` marker, the end of a run all three with the scores and the final marker, so the
+three always describe the same frames, whenever the run stops.
+"""
 
 from __future__ import annotations
 
@@ -15,10 +21,16 @@ from vcr_odom.data.base import LidarSequence
 from vcr_odom.geometry import Transform, lidar_to_camera_poses, normalise_to_first
 from vcr_odom.io import write_kitti_poses, write_tum_trajectory
 from vcr_odom.odometry.loop import OdometryRun
-from vcr_odom.results import write_json
+from vcr_odom.results import Status, result_unit, write_json, write_marker
 
 CHECKPOINT_EVERY_FRAMES = 50
-"""How often a running trajectory is re-written, so that even a killed run leaves a usable file."""
+"""How often a running trajectory is re-published, so that even a killed run leaves a usable file."""
+
+TRAJECTORY_FILES = ("trajectory_kitti.txt", "trajectory_tum.txt", "frames.json")
+"""The files that always describe the same frames (and the marker's ``frames_done``)."""
+
+Extras = Callable[[Path], None]
+"""Writes more files (scores, a plot) into a unit's folder before its marker."""
 
 
 @dataclass
@@ -36,39 +48,92 @@ def ground_truth_for(sequence: LidarSequence, frame_indices: Sequence[int]) -> N
     return normalise_to_first(gt[list(frame_indices)])
 
 
-def save_trajectory(folder: Path, run: OdometryRun, sequence: LidarSequence) -> SavedTrajectory:
-    """KITTI (camera frame when calibrated, so it compares with official files) and TUM, plus frame ids."""
+def save_trajectory(
+    folder: Path,
+    run: OdometryRun,
+    sequence: LidarSequence,
+    *,
+    frames_selected: int | None = None,
+    status: Status = "complete",
+    reason: str = "",
+    extras: Extras | None = None,
+) -> SavedTrajectory:
+    """Publish KITTI (camera frame when calibrated, so it compares with official files) and TUM
+    trajectories, the frame ids, whatever ``extras`` writes, and the marker, as one unit."""
     tr = sequence.tr_velo_to_cam
-    poses = run.poses if tr is None else lidar_to_camera_poses(run.poses, tr)
+    poses = run.poses if tr is None or len(run.poses) == 0 else lidar_to_camera_poses(run.poses, tr)
     frame = "lidar" if tr is None else "camera"
-    kitti = write_kitti_poses(folder / "trajectory_kitti.txt", poses)
-    tum = write_tum_trajectory(folder / "trajectory_tum.txt", poses, run.timestamps)
-    write_json(folder / "frames.json", {"frame_indices": run.frame_indices, "poses_frame": frame})
-    return SavedTrajectory(kitti=kitti, tum=tum, frame=frame)
+    selected = len(run.frame_indices) if frames_selected is None else frames_selected
+    with result_unit(folder) as unit:
+        write_kitti_poses(unit / "trajectory_kitti.txt", poses)
+        write_tum_trajectory(unit / "trajectory_tum.txt", poses, run.timestamps)
+        write_json(unit / "frames.json", {"frame_indices": run.frame_indices, "poses_frame": frame})
+        if extras is not None:
+            extras(unit)
+        write_marker(unit, status, len(run.frame_indices), selected, reason, method=run.method)
+    return SavedTrajectory(kitti=folder / TRAJECTORY_FILES[0], tum=folder / TRAJECTORY_FILES[1], frame=frame)
 
 
-def checkpointing(folder: Path, sequence: LidarSequence) -> Callable[[int, Transform], None]:
-    """A per-frame callback that re-writes the partial trajectory every few frames (atomically)."""
-    poses: list[Transform] = []
-    indices: list[int] = []
-    timestamps = sequence.timestamps
+class Checkpoints:
+    """The per-frame callback of a run: keeps each pose as it comes and re-publishes the trajectory so
+    far as a ``partial`` unit every ``every`` frames (default :data:`CHECKPOINT_EVERY_FRAMES`); :meth:`save` publishes it on demand (Ctrl-C, an
+    error). ``on_saved`` is called after each publication (to move ``latest``)."""
 
-    def on_frame(index: int, pose: Transform) -> None:
-        poses.append(pose)
-        indices.append(index)
-        if len(poses) % CHECKPOINT_EVERY_FRAMES == 0:
-            partial = OdometryRun(
-                method="partial",
-                frame_indices=list(indices),
-                poses=np.stack(poses),
-                timestamps=timestamps[indices],
-                stage_seconds={},
-                wall_seconds=0.0,
-                interrupted=True,
+    def __init__(
+        self,
+        folder: Path,
+        sequence: LidarSequence,
+        frames_selected: int,
+        method: str = "partial",
+        every: int | None = None,
+        on_saved: Callable[[], Any] | None = None,
+    ) -> None:
+        self.folder = folder
+        self.sequence = sequence
+        self.frames_selected = frames_selected
+        self.method = method
+        self.every = max(int(CHECKPOINT_EVERY_FRAMES if every is None else every), 1)
+        self.on_saved = on_saved
+        self.poses: list[Transform] = []
+        self.indices: list[int] = []
+
+    @property
+    def frames_done(self) -> int:
+        return len(self.indices)
+
+    def __call__(self, index: int, pose: Transform) -> None:
+        self.poses.append(np.asarray(pose, dtype=np.float64))
+        self.indices.append(index)
+        if len(self.poses) % self.every == 0:
+            self.save(
+                f"checkpoint after {len(self.poses)} of {self.frames_selected} frames; the run was "
+                "still going (if nothing newer replaced this, it was stopped or killed)"
             )
-            save_trajectory(folder, partial, sequence)
 
-    return on_frame
+    def save(self, reason: str) -> bool:
+        """Publish the frames so far as a ``partial`` unit; False (nothing written) when there are none."""
+        if not self.poses:
+            return False
+        partial = OdometryRun(
+            method=self.method,
+            frame_indices=list(self.indices),
+            poses=np.stack(self.poses),
+            timestamps=np.asarray(self.sequence.timestamps)[self.indices],
+            stage_seconds={},
+            wall_seconds=0.0,
+            interrupted=True,
+        )
+        save_trajectory(
+            self.folder,
+            partial,
+            self.sequence,
+            frames_selected=self.frames_selected,
+            status="partial",
+            reason=reason,
+        )
+        if self.on_saved is not None:
+            self.on_saved()
+        return True
 
 
 def run_summary(run: OdometryRun) -> dict[str, Any]:

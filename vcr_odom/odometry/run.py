@@ -1,4 +1,10 @@
-"""One method over one sequence into a result folder: what ``vcr-odom run`` does, callable from Python."""
+"""One method over one sequence into a result folder: what ``vcr-odom run`` does, callable from Python.
+
+Order matters for a user's mistakes: every input and output is checked (the sequence, the frames, the
+method and its weights, ``--results-dir``, ``--save-map``) before the result folder exists, so a run
+that cannot start leaves no folder behind; one that stops part-way leaves a folder marked ``partial``
+(see :mod:`vcr_odom.results`).
+"""
 
 from __future__ import annotations
 
@@ -6,22 +12,32 @@ from collections.abc import Callable, Sequence
 from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from pydantic import Field
 
 from vcr_odom.data.base import LidarSequence, Points
 from vcr_odom.data.selection import FrameSelection
+from vcr_odom.errors import DataError, VcrOdomError
 from vcr_odom.geometry import Transform
-from vcr_odom.mapping import VoxelMap
+from vcr_odom.mapping import VoxelMap, check_map_path
 from vcr_odom.metrics import EvaluationReport, evaluate
 from vcr_odom.odometry.chain import Consult, Odometry
 from vcr_odom.odometry.factory import DEFAULT_CONSULT, build_odometry, canonical_spec
 from vcr_odom.odometry.limits import InitialGuess
 from vcr_odom.odometry.loop import OdometryRun, run_odometry
-from vcr_odom.odometry.outputs import checkpointing, ground_truth_for, run_summary, save_trajectory
+from vcr_odom.odometry.outputs import Checkpoints, ground_truth_for, run_summary, save_trajectory
 from vcr_odom.plots import plot_trajectories
 from vcr_odom.registration.base import SequentialOdometry
-from vcr_odom.results import create_result_folder, provenance, write_json
+from vcr_odom.results import (
+    check_output_folder,
+    create_result_folder,
+    holds_trajectory,
+    interruption_reason,
+    point_latest_at,
+    remove_result_folder,
+    write_json,
+)
 from vcr_odom.settings import Settings
 
 Progress = Callable[[int, Transform], None]
@@ -52,7 +68,9 @@ class RunSettings(Settings):
 
 @dataclass
 class RunOutcome:
-    folder: Path
+    """``folder`` is None where the run stopped before its first frame (nothing was kept)."""
+
+    folder: Path | None
     sequence: LidarSequence
     run: OdometryRun
     report: EvaluationReport | None
@@ -64,9 +82,43 @@ def vcr_options(method: str, weights: Path | None, device: str, passes: int | No
     return {"weights": weights, "device": device, "passes": passes} if method == "vcr" else {}
 
 
+def open_selection(selection: FrameSelection) -> LidarSequence:
+    """``selection.open()``, with a poses, calibration or times file that is not UTF-8 text reported as
+    a DataError naming it (the readers would raise a bare UnicodeDecodeError naming no file)."""
+    try:
+        return selection.open()
+    except UnicodeDecodeError as error:
+        bad = [path for path in _text_inputs(selection) if not _is_utf8(path)]
+        named = ", ".join(str(path) for path in bad) or "a text file of the sequence (poses, calib, times)"
+        raise DataError(f"{named}: not UTF-8 text ({error.reason} at byte {error.start})") from None
+
+
+def _text_inputs(selection: FrameSelection) -> list[Path]:
+    """The text files a selection reads: those named by option, and those of the KITTI layout."""
+    named = [getattr(selection, name, None) for name in ("poses", "calib", "times")]
+    root, seq = selection.data_root, selection.seq
+    if root is not None:
+        named += [root / "poses" / f"{seq}.txt", root / "sequences" / seq / "calib.txt"]
+        named += [root / "sequences" / seq / "times.txt"]
+    if selection.folder is not None:
+        named += [selection.folder / "times.txt", selection.folder.parent / "calib.txt"]
+    return [Path(path) for path in named if path is not None and Path(path).is_file()]
+
+
+def _is_utf8(path: Path) -> bool:
+    try:
+        path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError:
+        return False
+    return True
+
+
 def run_sequence(settings: RunSettings, progress: ProgressFactory | None = None) -> RunOutcome:
-    """Build the method, run it over the selected frames and write the result folder."""
-    sequence = settings.selection.open()
+    """Check everything, build the method, run it over the selected frames and write the result folder."""
+    check_output_folder(settings.results_dir, "--results-dir")
+    if settings.save_map is not None:
+        check_map_path(settings.save_map)
+    sequence = open_selection(settings.selection)
     indices = settings.selection.indices(sequence)
     spec = settings.spec
     odometry = build_odometry(
@@ -75,15 +127,32 @@ def run_sequence(settings: RunSettings, progress: ProgressFactory | None = None)
         consult=settings.consult,
         **vcr_options(spec.partition("+")[0], settings.weights, settings.device, settings.vcr_passes),
     )
-    folder = create_result_folder(settings.results_dir, f"run_{sequence.name}_{spec}")
-    write_json(
-        folder / "config.json",
-        provenance({"command": "run", "sequence": sequence.name, **settings.to_dict()}),
+    folder = create_result_folder(
+        settings.results_dir,
+        f"run_{sequence.name}_{spec}",
+        {"command": "run", "sequence": sequence.name, **settings.to_dict()},
+        frames_selected=len(indices),
     )
     voxel_map = VoxelMap(voxel_size=settings.map_voxel) if settings.save_map else None
     title = f"{spec} on {sequence.name}"
-    with progress(title, len(indices)) if progress is not None else nullcontext(None) as advance:
-        run, report = run_and_save(sequence, odometry, indices, folder, progress=advance, voxel_map=voxel_map)
+    try:
+        with progress(title, len(indices)) if progress is not None else nullcontext(None) as advance:
+            run, report = run_and_save(
+                sequence,
+                odometry,
+                indices,
+                folder,
+                progress=advance,
+                voxel_map=voxel_map,
+                on_saved=lambda: point_latest_at(settings.results_dir, folder),
+            )
+    except BaseException:
+        if not holds_trajectory(folder):  # failed before its first frame: nothing worth keeping
+            remove_result_folder(folder)
+        raise
+    if not run.frame_indices:
+        remove_result_folder(folder)
+        return RunOutcome(None, sequence, run, None, None)
     if voxel_map is not None and settings.save_map is not None:
         voxel_map.save(settings.save_map)
     return RunOutcome(folder, sequence, run, report, voxel_map)
@@ -98,34 +167,91 @@ def run_and_save(
     progress: Progress | None = None,
     plot_title: str = "",
     voxel_map: VoxelMap | None = None,
+    on_saved: Callable[[], Any] | None = None,
 ) -> tuple[OdometryRun, EvaluationReport | None]:
-    """Run one method, write its trajectory, metrics and plot into ``folder``.
+    """Run one method, publish its trajectory, metrics and plot into ``folder`` as one unit.
 
+    Every :data:`~vcr_odom.odometry.outputs.CHECKPOINT_EVERY_FRAMES` frames the trajectory so far is
+    published as ``partial``; an error or Ctrl-C part-way publishes what was done as ``partial``
+    (with the reason) before it propagates. ``on_saved`` runs after each publication that holds frames.
     With ``voxel_map`` each registered scan is added to it as it comes (the frame is not read twice);
     the plot then shows the trajectory over a top-down view of the map.
     """
-    checkpoint = checkpointing(folder, sequence)
+    selected = len(frame_indices)
+    checkpoints = Checkpoints(folder, sequence, selected, method=method.name, on_saved=on_saved)
 
     def on_frame(index: int, pose: Transform, points: Points) -> None:
-        checkpoint(index, pose)
+        checkpoints(index, pose)
         if voxel_map is not None:
             voxel_map.add(points, pose)
         if progress is not None:
             progress(index, pose)
 
-    run = run_odometry(sequence, method, frame_indices, on_frame=on_frame)
+    try:
+        run = run_odometry(sequence, method, frame_indices, on_frame=on_frame)
+    except BaseException as error:
+        checkpoints.save(
+            f"{interruption_reason(error)} (after {checkpoints.frames_done} of {selected} frames)"
+        )
+        if isinstance(error, Exception):
+            _name_the_frame(error, method, frame_indices, checkpoints.frames_done)
+        raise
     if len(run.poses) == 0:
         return run, None
-    save_trajectory(folder, run, sequence)
     gt = ground_truth_for(sequence, run.frame_indices)
     report = evaluate(run.poses, gt) if gt is not None and len(run.poses) >= 2 else None
     scores = report.to_dict() if report is not None else {"ground_truth": None}
-    write_json(folder / "metrics.json", {"run": run_summary(run), **scores})
-    plot_trajectories(
-        folder / "trajectory.png",
-        {run.method: run.poses},
-        gt,
-        title=plot_title or f"{sequence.name}: {run.method}",
-        background_xy=voxel_map.top_down() if voxel_map is not None and len(voxel_map) else None,
-    )
+    done = len(run.frame_indices)
+    status = "partial" if run.interrupted or done < selected else "complete"
+    reason = f"interrupted (Ctrl-C) after {done} of {selected} frames" if run.interrupted else ""
+
+    def scores_and_plot(unit: Path) -> None:
+        write_json(unit / "metrics.json", {"run": run_summary(run), **scores})
+        plot_trajectories(
+            unit / "trajectory.png",
+            {run.method: run.poses},
+            gt,
+            title=plot_title or f"{sequence.name}: {run.method}",
+            background_xy=voxel_map.top_down() if voxel_map is not None and len(voxel_map) else None,
+        )
+
+    try:
+        save_trajectory(
+            folder,
+            run,
+            sequence,
+            frames_selected=selected,
+            status=status,
+            reason=reason,
+            extras=scores_and_plot,
+        )
+    except BaseException as error:  # e.g. Ctrl-C while plotting: keep the trajectory, say so
+        save_trajectory(
+            folder,
+            run,
+            sequence,
+            frames_selected=selected,
+            status="partial",
+            reason=f"{interruption_reason(error)} while writing the scores and plot",
+        )
+        raise
+    if on_saved is not None:
+        on_saved()
     return run, report
+
+
+def _name_the_frame(
+    error: Exception, method: Odometry | SequentialOdometry, frame_indices: Sequence[int], done: int
+) -> None:
+    """Say which frame ``error`` stopped the run at: the library's own errors get it in their one-line
+    message, others (a bug) as a note under the traceback. Frames come a batch at a time (VCR-Net on a
+    GPU), so past the first ``done`` frames it is the next batch's."""
+    batch = method.batch_size if isinstance(method, Odometry) else 1
+    stuck = list(frame_indices[done : done + max(batch, 1)])
+    if not stuck:
+        return
+    where = f"frame {stuck[0]}" if len(stuck) == 1 else f"one of frames {stuck[0]}..{stuck[-1]}"
+    if isinstance(error, VcrOdomError):
+        error.args = (f"{where}: {error}", *error.args[1:])
+    else:
+        error.add_note(f"vcr-odom: the run stopped at {where}")

@@ -22,7 +22,7 @@ from vcr_odom.geometry import Transform, project_to_se3
 from vcr_odom.model.config import VcrConfig
 from vcr_odom.model.weights import default_weights_path, load_weights
 from vcr_odom.preprocess import network_preprocess_config, preprocess
-from vcr_odom.registration.base import DEGENERATE, RegistrationResult
+from vcr_odom.registration.base import DEGENERATE, TOO_FEW_POINTS, RegistrationResult
 
 GPU_BATCH_SIZE = 16
 """Pairs per network call on CUDA (``batch_size=None``); 1 on the CPU."""
@@ -41,10 +41,16 @@ this small means they collapsed onto a line, where the rotation about it is unde
 
 @dataclass
 class VcrFrame:
-    """A frame as the network sees it: ``points`` (1, N, 3) on the device and their encoder features."""
+    """A frame as the network sees it: ``points`` (1, N, 3) on the device and their encoder features.
+
+    ``distinct_points`` below the network's k + 1 (a frame of one point repeated, a near-empty scan)
+    means its kNN graphs are meaningless: every pair with it is reported ``too few points``, so the
+    odometry falls back and flags the frame by its index instead of aborting the run.
+    """
 
     points: torch.Tensor
     features: torch.Tensor
+    distinct_points: int = -1
 
 
 class VcrRegistrar:
@@ -85,7 +91,15 @@ class VcrRegistrar:
             xyz = np.asarray(points, dtype=np.float32)[:, :3]
         else:
             xyz = preprocess(points, self.preprocess_config)[:, :3]
-        return np.ascontiguousarray(xyz)
+        if 0 < len(xyz) != self.config.num_points:
+            # Farthest point sampling stops short on a cloud of few distinct points (5000 copies of
+            # one point give one): repeat them up to N, so the frame batches and is then flagged.
+            xyz = xyz[np.arange(self.config.num_points) % len(xyz)]
+        return np.ascontiguousarray(xyz, dtype=np.float32)
+
+    def too_few_points(self, frame: VcrFrame) -> bool:
+        """Fewer distinct points than the network's kNN graphs need (k + 1)."""
+        return 0 <= frame.distinct_points <= self.config.k
 
     @torch.inference_mode()
     def prepare(self, points: Points) -> VcrFrame:
@@ -94,10 +108,11 @@ class VcrRegistrar:
     @torch.inference_mode()
     def prepare_batch(self, frames: Sequence[Points]) -> list[VcrFrame]:
         """Pre-process each frame (CPU), then encode them all in one forward pass."""
-        stacked = np.stack([self.network_input(points) for points in frames])
-        tensor = torch.as_tensor(stacked, dtype=torch.float32, device=self.device)
+        inputs = [self.network_input(points) for points in frames]
+        distinct = [len(np.unique(xyz, axis=0)) for xyz in inputs]
+        tensor = torch.as_tensor(np.stack(inputs), dtype=torch.float32, device=self.device)
         features = self.model.encode(tensor)
-        return [VcrFrame(tensor[i : i + 1], features[i : i + 1]) for i in range(len(frames))]
+        return [VcrFrame(tensor[i : i + 1], features[i : i + 1], distinct[i]) for i in range(len(frames))]
 
     @torch.inference_mode()
     def register(
@@ -130,10 +145,13 @@ class VcrRegistrar:
         # Spread of the last pass: the one whose correspondences gave the final rotation.
         spread = correspondence_spread(output.virtual_points).to("cpu").tolist()
         results = []
-        for transform, ratio in zip(transforms, spread, strict=True):
+        for (source, target), transform, ratio in zip(pairs, transforms, spread, strict=True):
             info: dict[str, Any] = {"correspondence_spread": ratio, "passes": self.passes}
             if not ratio >= MIN_CORRESPONDENCE_SPREAD:  # also catches NaN
                 info["status"] = DEGENERATE
+            sparse = [frame.distinct_points for frame in (source, target) if self.too_few_points(frame)]
+            if sparse:
+                info |= {"status": TOO_FEW_POINTS, "distinct_points": min(sparse)}
             results.append(RegistrationResult(transform.copy(), info=info))
         return results
 

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import os
 import re
+import secrets
+import shutil
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -49,6 +51,10 @@ def write_bin(path: Path, points: NDArray[np.float32]) -> Path:
     return atomic_write_bytes(path, np.ascontiguousarray(points, dtype=np.float32).tobytes())
 
 
+SYNTH_ENTRIES = frozenset({"velodyne", "calib.txt", "times.txt"})
+"""What :func:`write_sequence` puts in a sequence folder: a folder holding anything else is not ours."""
+
+
 def write_sequence(
     sequence: SynthSequence,
     out_root: str | os.PathLike[str],
@@ -57,8 +63,11 @@ def write_sequence(
 ) -> WrittenSequence:
     """Write ``sequence`` under ``out_root`` in the KITTI odometry layout.
 
-    Frames first, then ``calib.txt``, ``times.txt`` and last the poses, so a sequence with a poses file
-    is complete. Stale frames of an earlier, longer run in the same folder are removed. ``progress`` is
+    The sequence folder is written in full beside its place (a hidden ``sequences/.<seq>.*.writing``)
+    and renamed into place; the poses file comes last. So an interrupted or killed synth over an
+    existing sequence leaves the old one or the new one, never frames of both: at worst a sequence
+    without its poses file, which is how an incomplete sequence shows. A folder holding files synth
+    does not write (a real dataset's images, say) is refused rather than replaced. ``progress`` is
     called with the number of frames written so far.
     """
     if not SEQUENCE_NAME.match(seq):
@@ -66,19 +75,27 @@ def write_sequence(
     start = time.perf_counter()
     root = Path(out_root)
     seq_dir = root / "sequences" / seq
-    velodyne = seq_dir / "velodyne"
     poses_file = root / "poses" / f"{seq}.txt"
-    velodyne.mkdir(parents=True, exist_ok=True)
-    poses_file.unlink(missing_ok=True)
-    for stale in velodyne.glob("*.bin"):
-        if stale.stem.isdigit() and int(stale.stem) >= len(sequence):
-            stale.unlink()
-    for index in range(len(sequence)):
-        write_bin(velodyne / f"{index:06d}.bin", sequence.frame(index))
-        if progress is not None:
-            progress(index + 1)
-    write_kitti_calib(seq_dir / "calib.txt", kitti_calib())
-    write_times(seq_dir / "times.txt", sequence.timestamps)
+    _check_replaceable(seq_dir)
+    seq_dir.parent.mkdir(parents=True, exist_ok=True)
+    for pattern in (f".{seq}.*.writing", f".{seq}.*.old"):  # left by a killed synth
+        for stale in seq_dir.parent.glob(pattern):
+            shutil.rmtree(stale, ignore_errors=True)
+    staging = seq_dir.with_name(f".{seq}.{os.getpid()}.{secrets.token_hex(4)}.writing")
+    try:
+        velodyne = staging / "velodyne"
+        velodyne.mkdir(parents=True)
+        for index in range(len(sequence)):
+            write_bin(velodyne / f"{index:06d}.bin", sequence.frame(index))
+            if progress is not None:
+                progress(index + 1)
+        write_kitti_calib(staging / "calib.txt", kitti_calib())
+        write_times(staging / "times.txt", sequence.timestamps)
+        poses_file.unlink(missing_ok=True)  # from here the old sequence shows as incomplete
+        _replace_folder(staging, seq_dir)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
     write_kitti_poses(poses_file, lidar_to_camera_poses(sequence.gt_poses, KITTI_TR))
     return WrittenSequence(
         seq_dir=seq_dir,
@@ -91,6 +108,30 @@ def write_sequence(
         height=sequence.sensor.height,
         scene=sequence.scene_style,
     )
+
+
+def _check_replaceable(seq_dir: Path) -> None:
+    """A ConfigError, before any work, where ``seq_dir`` is not a folder synth may replace."""
+    if seq_dir.exists() and not seq_dir.is_dir():
+        raise ConfigError(f"--out: {seq_dir} exists and is not a folder")
+    if seq_dir.is_dir():
+        foreign = sorted(p.name for p in seq_dir.iterdir() if p.name not in SYNTH_ENTRIES)
+        if foreign:
+            raise ConfigError(
+                f"--out: {seq_dir} holds files synth does not write ({', '.join(foreign[:5])}); "
+                "refusing to replace it: choose another --out or --seq"
+            )
+
+
+def _replace_folder(new: Path, target: Path) -> None:
+    """Put ``new`` where ``target`` is: the old folder is renamed aside, then removed."""
+    old = None
+    if target.exists():
+        old = target.with_name(f".{target.name}.{os.getpid()}.{secrets.token_hex(4)}.old")
+        os.rename(target, old)
+    os.rename(new, target)
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
 
 
 def generate_sequence(
