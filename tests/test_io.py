@@ -119,3 +119,11 @@ def test_times_round_trip_exactly_skip_blank_lines_and_reject_empty_files(tmp_pa
         io.read_times(tmp_path / "empty.txt")
     with pytest.raises(DataError, match=r"not found.*missing\.txt"):
         io.read_times(tmp_path / "missing.txt")
+
+
+@pytest.mark.parametrize("reader", [io.read_kitti_poses, io.read_kitti_calib])
+def test_a_file_that_is_not_utf8_is_a_data_error_naming_it(tmp_path, reader) -> None:
+    path = tmp_path / "latin1.txt"
+    path.write_bytes("P0: 1 0 0\nTr: caf\xe9\n".encode("latin-1"))
+    with pytest.raises(DataError, match=r"latin1\.txt:2: not UTF-8 text"):
+        reader(path)

@@ -43,6 +43,23 @@ def atomic_write_text(path: str | os.PathLike[str], text: str) -> Path:
     return atomic_write_bytes(path, text.encode())
 
 
+EXPECTED_POSES = "a KITTI poses file holds 12 numbers (a 3x4 matrix, row-major) per line"
+EXPECTED_CALIB = "a KITTI calib.txt holds lines 'NAME: numbers'"
+
+
+def read_text(path: Path, expected: str) -> str:
+    """The file as UTF-8 text, or a DataError naming the file, the line and what it should hold: a
+    binary or mis-encoded file would otherwise surface as a UnicodeDecodeError traceback."""
+    raw = path.read_bytes()
+    try:
+        return raw.decode("utf-8-sig")
+    except UnicodeDecodeError as error:
+        line = raw[: error.start].count(b"\n") + 1
+        raise DataError(
+            f"{path}:{line}: not UTF-8 text (byte 0x{raw[error.start]:02x}); {expected}"
+        ) from None
+
+
 def read_kitti_poses(path: str | os.PathLike[str]) -> NDArray[np.float64]:
     """Read a KITTI pose file (12 numbers a line, row-major 3x4) into ``(M, 4, 4)``.
 
@@ -54,7 +71,7 @@ def read_kitti_poses(path: str | os.PathLike[str]) -> NDArray[np.float64]:
     if not path.is_file():
         raise DataError(f"poses file not found: {path}")
     rows = []
-    for line_number, line in enumerate(path.read_text().splitlines(), start=1):
+    for line_number, line in enumerate(read_text(path, EXPECTED_POSES).splitlines(), start=1):
         if not line.strip():
             continue
         try:
@@ -95,7 +112,7 @@ def read_kitti_calib(path: str | os.PathLike[str]) -> dict[str, NDArray[np.float
     if not path.is_file():
         raise DataError(f"calibration file not found: {path}")
     calib: dict[str, NDArray[np.float64]] = {}
-    for line_number, line in enumerate(path.read_text().splitlines(), start=1):
+    for line_number, line in enumerate(read_text(path, EXPECTED_CALIB).splitlines(), start=1):
         if not line.strip():
             continue
         key, sep, rest = line.partition(":")
@@ -138,15 +155,7 @@ def read_times(path: str | os.PathLike[str]) -> NDArray[np.float64]:
     path = Path(path)
     if not path.is_file():
         raise DataError(f"timestamps file not found: {path}")
-    raw = path.read_bytes()
-    try:
-        text = raw.decode("utf-8-sig")
-    except UnicodeDecodeError as error:
-        line = raw[: error.start].count(b"\n") + 1
-        raise DataError(
-            f"{path}:{line}: not UTF-8 text (byte 0x{raw[error.start]:02x}); a times.txt holds one number "
-            "(seconds) per line"
-        ) from None
+    text = read_text(path, "a times.txt holds one number (seconds) per line")
     expected = "one number (seconds) per line, strictly increasing"
     stamps: list[float] = []
     previous_line = 0

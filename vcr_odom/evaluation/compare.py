@@ -27,7 +27,7 @@ from vcr_odom.odometry.factory import DEFAULT_CONSULT, build_odometry, canonical
 from vcr_odom.odometry.limits import InitialGuess
 from vcr_odom.odometry.loop import OdometryRun
 from vcr_odom.odometry.outputs import ground_truth_for, run_summary
-from vcr_odom.odometry.run import ProgressFactory, open_selection, run_and_save, vcr_options
+from vcr_odom.odometry.run import ProgressFactory, run_and_save, vcr_options
 from vcr_odom.plots import plot_trajectories
 from vcr_odom.preprocess import PreprocessConfig
 from vcr_odom.registration.base import SequentialOdometry
@@ -109,7 +109,7 @@ def run_comparison(settings: CompareSettings, progress: ProgressFactory | None =
     """
     specs = list(dict.fromkeys(canonical_spec(s) for s in settings.methods))  # a bad name fails here
     check_output_folder(settings.results_dir, "--results-dir")
-    sequence = open_selection(settings.selection)
+    sequence = settings.selection.open()
     indices = settings.selection.indices(sequence)
     kinds = pair_kinds_to_run(settings, sequence) if settings.protocol != "odometry" else ()
     odometries = {}

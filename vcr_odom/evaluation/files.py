@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import os
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TypeVar
@@ -54,8 +53,8 @@ def evaluate_files(
     When the estimate covers only some ground-truth frames (``run --frames/--stride``), say which with
     ``frames``/``stride``, or keep the run's ``frames.json`` beside the estimate and it is used.
     """
-    gt = _as_text(read_kitti_poses, gt_path, "poses")
-    est = _as_text(read_kitti_poses, est_path, "poses")
+    gt = read_kitti_poses(gt_path)
+    est = read_kitti_poses(est_path)
     notes: list[str] = []
     warnings = estimate_warnings(est_path)
     indices = _frame_indices(len(gt), est_path, frames, stride, notes)
@@ -69,7 +68,7 @@ def evaluate_files(
     if calib is not None:
         # The same check as run's: a Tr that is not rigid (a typo, an all-zero line) would give
         # plausible-looking but wrong figures.
-        tr = _as_text(lambda path: read_tr(path, required=True), calib, "calibration")
+        tr = read_tr(calib, required=True)
         assert tr is not None
         gt, est = camera_to_lidar_poses(gt, tr), camera_to_lidar_poses(est, tr)
         frame = "LiDAR frame"
@@ -81,17 +80,6 @@ def evaluate_files(
         notes=notes,
         warnings=warnings,
     )
-
-
-def _as_text(reader: Callable[[Path], T], path: Path, what: str) -> T:
-    """``reader(path)``, with a file that is not UTF-8 text reported as a DataError naming it."""
-    try:
-        return reader(path)
-    except UnicodeDecodeError as error:
-        raise DataError(
-            f"{path}: not a text {what} file (byte 0x{error.object[error.start]:02x} at offset "
-            f"{error.start} is not UTF-8)"
-        ) from None
 
 
 def estimate_warnings(est_path: Path) -> list[str]:

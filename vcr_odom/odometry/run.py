@@ -18,7 +18,7 @@ from pydantic import Field
 
 from vcr_odom.data.base import LidarSequence, Points
 from vcr_odom.data.selection import FrameSelection
-from vcr_odom.errors import DataError, VcrOdomError
+from vcr_odom.errors import VcrOdomError
 from vcr_odom.geometry import Transform
 from vcr_odom.mapping import VoxelMap, check_map_path
 from vcr_odom.metrics import EvaluationReport, evaluate
@@ -82,43 +82,12 @@ def vcr_options(method: str, weights: Path | None, device: str, passes: int | No
     return {"weights": weights, "device": device, "passes": passes} if method == "vcr" else {}
 
 
-def open_selection(selection: FrameSelection) -> LidarSequence:
-    """``selection.open()``, with a poses, calibration or times file that is not UTF-8 text reported as
-    a DataError naming it (the readers would raise a bare UnicodeDecodeError naming no file)."""
-    try:
-        return selection.open()
-    except UnicodeDecodeError as error:
-        bad = [path for path in _text_inputs(selection) if not _is_utf8(path)]
-        named = ", ".join(str(path) for path in bad) or "a text file of the sequence (poses, calib, times)"
-        raise DataError(f"{named}: not UTF-8 text ({error.reason} at byte {error.start})") from None
-
-
-def _text_inputs(selection: FrameSelection) -> list[Path]:
-    """The text files a selection reads: those named by option, and those of the KITTI layout."""
-    named = [getattr(selection, name, None) for name in ("poses", "calib", "times")]
-    root, seq = selection.data_root, selection.seq
-    if root is not None:
-        named += [root / "poses" / f"{seq}.txt", root / "sequences" / seq / "calib.txt"]
-        named += [root / "sequences" / seq / "times.txt"]
-    if selection.folder is not None:
-        named += [selection.folder / "times.txt", selection.folder.parent / "calib.txt"]
-    return [Path(path) for path in named if path is not None and Path(path).is_file()]
-
-
-def _is_utf8(path: Path) -> bool:
-    try:
-        path.read_bytes().decode("utf-8")
-    except UnicodeDecodeError:
-        return False
-    return True
-
-
 def run_sequence(settings: RunSettings, progress: ProgressFactory | None = None) -> RunOutcome:
     """Check everything, build the method, run it over the selected frames and write the result folder."""
     check_output_folder(settings.results_dir, "--results-dir")
     if settings.save_map is not None:
         check_map_path(settings.save_map)
-    sequence = open_selection(settings.selection)
+    sequence = settings.selection.open()
     indices = settings.selection.indices(sequence)
     spec = settings.spec
     odometry = build_odometry(
