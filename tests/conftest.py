@@ -25,3 +25,16 @@ def kitti_gt_poses_dir() -> Path:
     if not (root / "poses" / "00.txt").is_file():
         pytest.skip(f"KITTI ground-truth poses not found at {root}")
     return root
+
+
+SMALL_SYNTHETIC_FRAMES = 8
+
+
+@pytest.fixture(scope="session")
+def small_synthetic_root(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """An 8-frame synthetic KITTI-layout sequence '00' (seed 3), shared by the CLI error and result tests."""
+    from vcr_odom.synth import generate_sequence
+
+    root = tmp_path_factory.mktemp("small-synthetic")
+    generate_sequence(root, seq="00", frames=SMALL_SYNTHETIC_FRAMES, seed=3)
+    return root

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from conftest import SMALL_SYNTHETIC_FRAMES
 
 from vcr_odom.cli.main import cli
 from vcr_odom.data import KittiSequence
@@ -31,14 +32,12 @@ from vcr_odom.results import (
 )
 from vcr_odom.synth import generate_sequence
 
-FRAMES = 8
+FRAMES = SMALL_SYNTHETIC_FRAMES
 
 
-@pytest.fixture(scope="module")
-def synthetic_root(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    root = tmp_path_factory.mktemp("synthetic")
-    generate_sequence(root, seq="00", frames=FRAMES, seed=3)
-    return root
+@pytest.fixture
+def synthetic_root(small_synthetic_root: Path) -> Path:
+    return small_synthetic_root
 
 
 def result_folders(results: Path) -> list[Path]:
