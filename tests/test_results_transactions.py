@@ -64,6 +64,8 @@ def check_folder(folder: Path) -> dict:
     if marker["status"] == "complete":
         assert done == marker["frames_selected"]
         assert (folder / "metrics.json").is_file()
+    visible = [path for path in folder.iterdir() if not path.name.startswith(".")]
+    assert not [path.name for path in visible if path.suffix == ".tmp" or path.stat().st_size == 0]
     return marker
 
 
