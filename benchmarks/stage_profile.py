@@ -3,7 +3,7 @@
 Wraps the functions each stage consists of (patched for the duration of a ``with`` block) and adds up
 the seconds spent in them, per thread and summed, so the library itself holds no timers. The stages:
 
-    load              ScanFileSequence.frame (KITTI and folder sequences)
+    load              SequenceBase.frame (KITTI, folder and recorded sequences)
     crop              preprocess.crop_range (the network's input; the polish crops inside its own prepare)
     ground removal    preprocess.remove_ground
     sampling          preprocess.downsample (farthest point sampling)
@@ -42,7 +42,7 @@ STAGES = (
 def _targets() -> list[tuple[object, str, str]]:
     """(owner, attribute, stage) of every function that is timed."""
     import vcr_odom.preprocess as preprocess
-    from vcr_odom.data.scans import ScanFileSequence
+    from vcr_odom.data.scans import SequenceBase
     from vcr_odom.model.network import VCRNet
     from vcr_odom.odometry.polish import IcpPolish, KissIcpPolish
     from vcr_odom.registration.fpfh import FpfhRansac
@@ -50,7 +50,7 @@ def _targets() -> list[tuple[object, str, str]]:
     from vcr_odom.registration.open3d_icp import Open3dIcp
 
     return [
-        (ScanFileSequence, "frame", "load"),
+        (SequenceBase, "frame", "load"),
         (preprocess, "crop_range", "crop"),
         (preprocess, "remove_ground", "ground removal"),
         (preprocess, "downsample", "sampling"),
