@@ -106,8 +106,9 @@ def run(ctx: click.Context, selection: FrameSelection, **options: object) -> Non
         )
     if result.flagged_frames:
         console.print(
-            f"[yellow]{len(result.flagged_frames)} frame(s) flagged (implausible motion replaced by the "
-            f"previous one): {result.flagged_frames[:20]}; reasons in metrics.json"
+            f"[yellow]{len(result.flagged_frames)} frame(s) flagged (an implausible or failed estimate: "
+            f"replaced by the previous motion, or kept where the frame rate is assumed): "
+            f"{result.flagged_frames[:20]}; reasons in metrics.json"
         )
     if report is not None:
         title = f"{settings.spec} on {outcome.sequence.name} (stride {selection.stride})"
