@@ -28,7 +28,7 @@ from vcr_odom.odometry.guided_kiss import (
     within_basin,
 )
 from vcr_odom.registration.base import RegistrationResult
-from vcr_odom.registration.kiss import kiss_config
+from vcr_odom.registration.kiss import kiss_config, kiss_input
 from vcr_odom.registration.open3d_icp import Open3dIcp
 
 POLISHES: dict[str, str] = {
@@ -182,8 +182,7 @@ class KissIcpPolish:
     def prepare(self, points: Points) -> KissFrame:
         """Finite xyz as float64 (as :class:`KissIcpOdometry` feeds kiss-icp), pre-processed and
         voxelized as kiss-icp would, and indexed for the frame-to-frame fit."""
-        xyz = np.asarray(points)[:, :3]
-        frame = np.ascontiguousarray(xyz[np.isfinite(xyz).all(axis=1)], dtype=np.float64)
+        frame = kiss_input(points)
         if len(frame) == 0:
             warnings.warn(
                 "kiss-icp polish: empty frame, the global estimate is kept", DataWarning, stacklevel=3

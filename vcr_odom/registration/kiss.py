@@ -39,6 +39,15 @@ def kiss_config(
     return config
 
 
+def kiss_input(points: Points) -> np.ndarray:
+    """kiss-icp's input: the finite xyz of ``points`` as contiguous float64. Loaders already drop
+    non-finite points, so the per-row filter runs only when one whole-array check finds some."""
+    xyz = np.asarray(points)[:, :3]
+    if not np.isfinite(xyz).all():
+        xyz = xyz[np.isfinite(xyz).all(axis=1)]
+    return np.ascontiguousarray(xyz, dtype=np.float64)
+
+
 class KissIcpOdometry:
     """``kiss_icp.kiss_icp.KissICP`` fed frame by frame; ``step`` returns the pose in the frame-0 LiDAR frame.
 
@@ -68,8 +77,7 @@ class KissIcpOdometry:
     def step(self, points: Points, timestamp: float = 0.0) -> Transform:
         """Register one raw frame; ``timestamp`` is unused (no per-point times without deskew)."""
         del timestamp
-        frame = np.asarray(points, dtype=np.float64)[:, :3]
-        frame = np.ascontiguousarray(frame[np.isfinite(frame).all(axis=1)])
+        frame = kiss_input(points)
         if len(frame) == 0:
             warnings.warn(
                 "kiss-icp: empty frame, pose extrapolated by the motion model", DataWarning, stacklevel=2
