@@ -54,9 +54,13 @@ def measure(args: argparse.Namespace) -> dict:
     profile = StageProfile()
     rss: list[tuple[int, float]] = []
 
+    done = 0
+
     def sample_rss(index: int, *_: object) -> None:
-        if args.rss_every and len(rss) * args.rss_every <= indices.index(index):
+        nonlocal done
+        if done % args.rss_every == 0:
             rss.append((index, _current_rss_mib()))
+        done += 1
 
     with profile.patched():
         run = run_odometry(sequence, method, indices, on_frame=sample_rss if args.rss_every else None)

@@ -6,9 +6,10 @@ from pathlib import Path
 
 import click
 
+from vcr_odom.cli.config_options import config_options
 from vcr_odom.cli.progress import EXIT_CODES_HELP, console, frame_progress
 from vcr_odom.results import check_output_folder
-from vcr_odom.synth import SCENE_STYLES, SENSOR_MODELS, SEQUENCE_NAME, generate_sequence
+from vcr_odom.synth import SCENE_STYLES, SENSOR_MODELS, SEQUENCE_NAME, SynthConfig, generate_sequence
 
 
 def _check_seq(ctx: click.Context, param: click.Parameter, value: str) -> str:
@@ -31,23 +32,7 @@ def _check_seq(ctx: click.Context, param: click.Parameter, value: str) -> str:
     callback=_check_seq,
     help="Sequence id (folder name under sequences/).",
 )
-@click.option(
-    "--frames", type=click.IntRange(min=2), default=200, show_default=True, help="Number of frames."
-)
-@click.option(
-    "--seed",
-    type=click.IntRange(min=0),
-    default=0,
-    show_default=True,
-    help="Seed of the scene and the drive; the same seed writes byte-identical files.",
-)
-@click.option(
-    "--speed",
-    type=click.FloatRange(min=1.0, max=30.0),
-    default=10.0,
-    show_default=True,
-    help="Typical speed in m/s; the drive varies between 0.5x and 1.5x and slows for turns.",
-)
+@config_options(SynthConfig, ("frames", "seed", "speed"))
 @click.option(
     "--sensor",
     type=click.Choice(SENSOR_MODELS),

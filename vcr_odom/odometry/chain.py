@@ -114,7 +114,7 @@ class Odometry:
     def prepare_ahead(self) -> bool:
         """Whether the per-frame work gains from running in a second thread: not where it is kiss-icp's
         (its C++ holds Python's GIL, so a thread only adds switching; README "Speed")."""
-        return self.polish is None or bool(getattr(self.polish, "prepare_ahead", True))
+        return self.polish is None or self.polish.prepare_ahead
 
     def reset(self, *, timestamps_assumed: bool = False) -> None:
         """Forget the previous frame and the pose: the next frame is the first (identity).

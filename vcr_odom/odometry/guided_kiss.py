@@ -69,7 +69,8 @@ class KissFramePreparer:
 
 
 def voxelize(config: KISSConfig, frame: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """kiss-icp's ``KissICP.voxelize``: the registration's source and the map's down-sampled frame."""
+    """kiss-icp's ``KissICP.voxelize`` for a configuration, without an instance (the per-frame work runs
+    ahead of the chain): the registration's source and the map's down-sampled frame."""
     downsample = voxel_down_sample(frame, config.mapping.voxel_size * 0.5)
     return voxel_down_sample(downsample, config.mapping.voxel_size * 1.5), downsample
 
@@ -161,7 +162,7 @@ class GuidedKissICP(KissICP):
         if frame.raw is None:
             assert frame.source is not None and frame.downsample is not None
             return frame.source, frame.downsample
-        return voxelize(self.config, self.preprocessor.preprocess(frame.raw, np.array([]), last_delta))
+        return self.voxelize(self.preprocessor.preprocess(frame.raw, np.array([]), last_delta))
 
     def _align(self, source: np.ndarray, guess: Transform, sigma: float) -> Transform:
         """kiss-icp's registration step, as its ``register_frame`` calls it."""

@@ -69,6 +69,8 @@ class Polish(Protocol):
     doubt (``finish(attempt, None)`` keeps the prior's result); ``restart`` recovers after a divergence."""
 
     name: str
+    prepare_ahead: bool
+    """Whether ``prepare`` gains from running in a second thread (not where it holds the GIL)."""
 
     def prepare(self, points: Points) -> Any: ...
 
@@ -109,6 +111,8 @@ class IcpPolish:
     """
 
     name = "icp"
+    prepare_ahead = True
+    """open3d releases the GIL: the ICP cloud of the next frame is built while this one is polished."""
 
     def __init__(self, icp: Open3dIcp | None = None, second_start: bool = True) -> None:
         self.icp = icp or polish_icp()

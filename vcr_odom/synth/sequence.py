@@ -38,10 +38,18 @@ class SynthConfig(Settings):
     ray-casting scene: it bounds memory and never changes a frame.
     """
 
-    frames: int = Field(default=200, ge=2)
-    seed: int = Field(default=0, ge=0)
-    speed: float = Field(default=10.0, ge=1.0, le=30.0)
-    """Typical speed (m/s); the drive varies between 0.5x and 1.5x and slows for turns."""
+    frames: int = Field(default=200, ge=2, description="Number of frames.")
+    seed: int = Field(
+        default=0,
+        ge=0,
+        description="Seed of the scene and the drive; the same seed writes byte-identical files.",
+    )
+    speed: float = Field(
+        default=10.0,
+        ge=1.0,
+        le=30.0,
+        description="Typical speed in m/s; the drive varies between 0.5x and 1.5x and slows for turns.",
+    )
     sensor: SensorConfig = Field(default_factory=SensorConfig)
     height: MountingHeight | None = None
     scene: str = "suburban"
