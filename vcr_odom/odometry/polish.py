@@ -165,6 +165,19 @@ def _icp_result(result: RegistrationResult, start: str) -> PolishResult:
     return PolishResult(np.asarray(result.transform, dtype=np.float64), info)
 
 
+POLISH_CONVERGENCE = 1e-3
+"""kiss-icp's registration stops when its update is below this (kiss-icp's own default: 1e-4, which
+the baseline keeps). On the sample the polish is as accurate at 1e-3, with a quarter less CPU per frame;
+README "Speed" has the figures, and kiss-icp's own speed at 1e-3 beside them."""
+
+
+def polish_kiss_config() -> KISSConfig:
+    """kiss-icp's configuration for the polish: its default, with :data:`POLISH_CONVERGENCE`."""
+    config = kiss_config()
+    config.registration.convergence_criterion = POLISH_CONVERGENCE
+    return config
+
+
 class KissIcpPolish:
     """kiss-icp's registration against its local voxel map (:class:`GuidedKissICP`).
 
@@ -178,7 +191,7 @@ class KissIcpPolish:
     """kiss-icp's pre-processing holds Python's GIL: done in a second thread it only slows the chain."""
 
     def __init__(self, config: KISSConfig | None = None, keep_prediction: bool = True) -> None:
-        self.config = config or kiss_config()
+        self.config = config or polish_kiss_config()
         self.keep_prediction = keep_prediction
         self.kiss = GuidedKissICP(self.config)
         self._preparer = KissFramePreparer(self.config)
