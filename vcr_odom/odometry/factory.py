@@ -21,7 +21,7 @@ measurements behind it); local methods (ICP, kiss-icp) get none."""
 
 DEFAULT_CONSULT = "on-doubt"
 """A polished global method asks its registrar where the motion prior's polished result is in doubt:
-as accurate as asking on every pair wherever measured (README "Speed"), at a fraction of the work."""
+as accurate as asking on every pair wherever measured (README "Benchmarks and speed"), at a fraction of the work."""
 
 POLISHED_VCR_PASSES = 1
 """VCR-Net passes per pair when a polish refines the estimate: the polish refines the residual a

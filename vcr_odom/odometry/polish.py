@@ -168,7 +168,7 @@ def _icp_result(result: RegistrationResult, start: str) -> PolishResult:
 POLISH_CONVERGENCE = 1e-3
 """kiss-icp's registration stops when its update is below this (kiss-icp's own default: 1e-4, which
 the baseline keeps). On the sample the polish is as accurate at 1e-3, with a quarter less CPU per frame;
-README "Speed" has the figures, and kiss-icp's own speed at 1e-3 beside them."""
+README "Benchmarks and speed" has the figures, kiss-icp's own at 1e-3 beside them."""
 
 
 def polish_kiss_config() -> KISSConfig:
@@ -188,7 +188,8 @@ class KissIcpPolish:
 
     name = "kiss-icp"
     prepare_ahead = False
-    """kiss-icp's pre-processing holds Python's GIL: done in a second thread it only slows the chain."""
+    """kiss-icp's pre-processing holds Python's GIL: done in a second thread it only slows the chain.
+    Nor does a second process gain on two cores: kiss-icp's registration already keeps both busy."""
 
     def __init__(self, config: KISSConfig | None = None, keep_prediction: bool = True) -> None:
         self.config = config or polish_kiss_config()
