@@ -8,8 +8,9 @@ on synthetic drives that nothing was tuned or trained on (seeds 71-74, one per s
     .venv/bin/python benchmarks/polish_convergence.py --data-root ../shared/data/kitti-sample --seq 00 \\
         --stride 1 --stride 5 --stride 10 [--criterion 1e-4 --criterion 1e-3] [--synthetic-frames 200]
 
-prints end-point drift, per-pair RMSE and process CPU milliseconds per frame (both cores count, so
-CPU time, not wall time, is what the criterion changes) for each method, criterion and stride.
+prints one markdown table: end-point drift, per-pair RMSE and process CPU milliseconds per frame
+(both cores count, so CPU time, not wall time, is what the criterion changes) for each method,
+criterion and stride.
 """
 
 from __future__ import annotations
@@ -19,8 +20,6 @@ import warnings
 from pathlib import Path
 from typing import Any
 
-from rich.console import Console
-from rich.table import Table
 from sequence_args import sequence_parser
 
 HELD_OUT_DRIVES = (
@@ -96,24 +95,14 @@ def main() -> None:
     from vcr_odom.odometry.outputs import ground_truth_for
     from vcr_odom.synth import SynthSequence
 
-    table = Table(title="kiss-icp registration convergence criterion: accuracy and CPU per frame")
-    for column in (
-        "data, stride",
-        "method",
-        "criterion",
-        "end-point [%]",
-        "rot RMSE [°]",
-        "trans RMSE [m]",
-        "CPU [ms/frame]",
-    ):
-        table.add_column(column, justify="left" if column in ("data, stride", "method") else "right")
+    rows: list[list[str]] = []
     sequence = open_sequence(args.seq, data_root=args.data_root)
     for stride in args.stride or [1]:
         indices = select_frames(len(sequence), args.frames, stride)
         for row in _rows(
             f"{sequence.name} s{stride}", sequence, indices, ground_truth_for(sequence, indices), args
         ):
-            table.add_row(*row)
+            rows.append(row)
     if args.synthetic_frames:
         for sensor, seed, scene in HELD_OUT_DRIVES:
             drive = SynthSequence(
@@ -123,8 +112,24 @@ def main() -> None:
                 indices = list(range(0, len(drive), stride))
                 gt = normalise_to_first(drive.gt_poses[indices])
                 for row in _rows(f"{sensor} seed {seed} s{stride}", drive, indices, gt, args):
-                    table.add_row(*row)
-    Console(width=160).print(table)
+                    rows.append(row)
+    print(markdown_table(rows))
+
+
+COLUMNS = (
+    "data, stride",
+    "method",
+    "criterion",
+    "end-point [%]",
+    "rot RMSE [°]",
+    "trans RMSE [m]",
+    "CPU [ms/frame]",
+)
+
+
+def markdown_table(rows: list[list[str]]) -> str:
+    lines = ["| " + " | ".join(COLUMNS) + " |", "|---|---|" + "---:|" * (len(COLUMNS) - 2)]
+    return "\n".join(lines + ["| " + " | ".join(row) + " |" for row in rows])
 
 
 if __name__ == "__main__":
