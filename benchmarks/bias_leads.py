@@ -11,7 +11,10 @@ gets its own measurement on the same frames, VCR alone, one pass:
 - ``pointer``: the gap sweep with the soft pointer's learned temperature and with it divided by 64
   (each virtual point nearly its best candidate, not a blend drawn towards the target's middle);
 - ``svd``: the gap sweep with the paper's single unweighted SVD, with 5 re-weighting rounds, and with
-  the consensus start before them (each unless it is how the weights run).
+  the consensus start before them (each unless it is how the weights run);
+- ``matches``: per gap, the share of key points whose virtual correspondence lies within 1 m of
+  where the true motion puts them, over all pairs and over the pairs the estimate fails (> 2° or
+  > 0.5 m). Few good matches on failed pairs means the features, not the pose head, are at fault.
 
     .venv/bin/python benchmarks/bias_leads.py --data-root ../shared/data/kitti-sample --seq 00 \\
         --frames 40:60 --weights weights/vcr-default.safetensors --gap 1 --gap 5 --gap 10
@@ -86,6 +89,48 @@ def far_share(method: Any, frames: list[np.ndarray], max_range: float) -> float:
     return float(np.mean(shares))
 
 
+MATCH_RADIUS_M = 1.0
+
+
+def match_agreement(
+    method: Any, sequence: Any, selection: list[int], gaps: list[int]
+) -> list[tuple[int, int, float, int, float]]:
+    """Per gap: (gap, pairs, share of good matches, failed pairs, share of good matches on them)."""
+    import torch
+
+    from vcr_odom.evaluation.gap_sweep import gap_pairs, true_motions
+    from vcr_odom.geometry import rotation_angle
+
+    gt = np.asarray(sequence.gt_poses, dtype=np.float64)
+    frames = {i: method.prepare(sequence.frame(i)) for i in selection}
+    rows = []
+    for gap in gaps:
+        pairs = gap_pairs(selection, gap)
+        shares, failed_shares = [], []
+        for (target, source), truth in zip(pairs, true_motions(gt, pairs), strict=True):
+            with torch.inference_mode():
+                out = method.model.register_features(
+                    frames[source].points,
+                    frames[source].features,
+                    frames[target].points,
+                    frames[target].features,
+                )
+            key = out.key_points[0].double().numpy()
+            virtual = out.virtual_points[0].double().numpy()
+            share = float(
+                np.mean(
+                    np.linalg.norm(key @ truth[:3, :3].T + truth[:3, 3] - virtual, axis=1) < MATCH_RADIUS_M
+                )
+            )
+            shares.append(share)
+            error = np.linalg.inv(truth) @ out.transform[0].double().numpy()
+            if np.degrees(rotation_angle(error)) > 2.0 or np.linalg.norm(error[:3, 3]) > 0.5:
+                failed_shares.append(share)
+        mean_failed = float(np.mean(failed_shares)) if failed_shares else math.nan
+        rows.append((gap, len(pairs), float(np.mean(shares)), len(failed_shares), mean_failed))
+    return rows
+
+
 def main() -> None:
     parser = sequence_parser(__doc__)
     parser.add_argument("--weights", type=Path, action="append", default=[], help="VCR weights (repeat)")
@@ -132,6 +177,13 @@ def main() -> None:
                     vcr_variant(path, label, robust_iterations=robust, consensus_hypotheses=consensus)
                 )
         print(markdown_table(run_gap_sweep(sequence, selection, variants, gaps)))
+        print(
+            f"\n| gap | pairs | matches within {MATCH_RADIUS_M:g} m of the truth | failed pairs | their matches |"
+        )
+        print("|---:|---:|---:|---:|---:|")
+        for gap, pairs, share, failed, failed_share in match_agreement(own, sequence, selection, gaps):
+            failed_text = "-" if math.isnan(failed_share) else f"{100 * failed_share:.1f} %"
+            print(f"| {gap} | {pairs} | {100 * share:.1f} % | {failed} | {failed_text} |")
 
 
 if __name__ == "__main__":
