@@ -41,8 +41,7 @@ def main() -> None:
 
     def tuned_fpfh():
         method = make_method("fpfh", feature_radius_factor=args.fpfh_radius_factor)
-        method.name = f"fpfh(r x{args.fpfh_radius_factor:g})"
-        return method
+        return method.with_changes(name=f"fpfh(r x{args.fpfh_radius_factor:g})")
 
     def vcr(path: Path, passes: int):
         method = make_method("vcr", weights=path, device="cpu", passes=passes)
