@@ -8,6 +8,8 @@ the seconds spent in them, per thread and summed, so the library itself holds no
     ground removal    preprocess.remove_ground
     sampling          preprocess.downsample (farthest point sampling)
     encoder           VCRNet.encode
+    self-attention    VCRNet.attend, once per frame when it is prepared (inside a registration, where
+                      a frame comes without it, it counts as registration)
     registration      VCRNet.register_features; other registrars' register
     polish prepare    the polish's per-frame cloud (IcpPolish.prepare, KissIcpPolish.prepare)
     polish            IcpPolish / KissIcpPolish: refine, from_prior, finish
@@ -32,6 +34,7 @@ STAGES = (
     "ground removal",
     "sampling",
     "encoder",
+    "self-attention",
     "registration",
     "polish prepare",
     "polish",
@@ -55,6 +58,7 @@ def _targets() -> list[tuple[object, str, str]]:
         (preprocess, "remove_ground", "ground removal"),
         (preprocess, "downsample", "sampling"),
         (VCRNet, "encode", "encoder"),
+        (VCRNet, "attend", "self-attention"),
         (VCRNet, "register_features", "registration"),
         (Open3dIcp, "register", "registration"),
         (FpfhRansac, "register", "registration"),

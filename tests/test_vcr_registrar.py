@@ -153,3 +153,31 @@ def test_a_second_pass_of_the_invariant_model_changes_nothing(weights: Path) -> 
 def _yaw(angle: float) -> np.ndarray:
     c, s = np.cos(angle), np.sin(angle)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+@pytest.mark.parametrize("passes", [1, 2])
+def test_a_frames_self_attention_is_computed_once_and_changes_nothing(
+    weights: Path, synth: SynthSequence, passes: int
+) -> None:
+    """A prepared frame carries its self-attention (it depends on the frame alone), so a frame that is
+    the source of one pair and the target of the next is attended once; registering with it gives what
+    the network computes from the encoded clouds alone."""
+    import dataclasses
+
+    registrar = VcrRegistrar(weights, "cpu", passes=passes)
+    frames = [registrar.prepare(synth.frame(i)) for i in range(3)]
+    assert all(frame.attended is not None for frame in frames)
+    calls = 0
+    attend = registrar.model.attend
+
+    def counted(*args: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        nonlocal calls
+        calls += 1
+        return attend(*args)
+
+    registrar.model.attend = counted  # type: ignore[method-assign]
+    cached = [registrar.register(frames[i], frames[i - 1]).transform for i in (1, 2)]
+    assert calls == 2 * (passes - 1)  # only the moved source of a later pass is attended again
+    bare = [dataclasses.replace(frame, attended=None) for frame in frames]
+    recomputed = [registrar.register(bare[i], bare[i - 1]).transform for i in (1, 2)]
+    np.testing.assert_allclose(np.stack(cached), np.stack(recomputed), atol=1e-6)

@@ -71,12 +71,25 @@ class VCRNet(nn.Module):
         _check_points(points, self.config.k)
         return self.encoder(points / self.config.coordinate_scale)
 
+    def attend(self, points: Tensor, features: Tensor) -> tuple[Tensor, Tensor]:
+        """Self-attention of encoded clouds: the attended features and each point's weight. It depends
+        on one cloud alone, so odometry computes it once per frame, for both pairs the frame is in."""
+        return self.self_attention(features, points)
+
     def register_features(
-        self, source_points: Tensor, source_features: Tensor, target_points: Tensor, target_features: Tensor
+        self,
+        source_points: Tensor,
+        source_features: Tensor,
+        target_points: Tensor,
+        target_features: Tensor,
+        *,
+        source_attended: tuple[Tensor, Tensor] | None = None,
+        target_attended: tuple[Tensor, Tensor] | None = None,
     ) -> VcrOutput:
-        """Attention, virtual correspondences and SVD on already-encoded clouds."""
-        psi_source, w_source = self.self_attention(source_features, source_points)
-        psi_target, w_target = self.self_attention(target_features, target_points)
+        """Attention, virtual correspondences and SVD on already-encoded clouds. ``*_attended``: the
+        cloud's :meth:`attend` output where it was computed before (it is then not recomputed)."""
+        psi_source, w_source = source_attended or self.attend(source_points, source_features)
+        psi_target, w_target = target_attended or self.attend(target_points, target_features)
         phi_source, phi_target = self.cross_attention(psi_source, psi_target)
         temperature = self.temperature
         if not self.training:

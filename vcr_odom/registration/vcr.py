@@ -41,7 +41,8 @@ this small means they collapsed onto a line, where the rotation about it is unde
 
 @dataclass
 class VcrFrame:
-    """A frame as the network sees it: ``points`` (1, N, 3) on the device and their encoder features.
+    """A frame as the network sees it: ``points`` (1, N, 3) on the device, their encoder features and
+    self-attention (``attended``: features and point weights), all of which depend on the frame alone.
 
     ``distinct_points`` below the network's k + 1 (a frame of one point repeated, a near-empty scan)
     means its kNN graphs are meaningless: every pair with it is reported ``too few points``, so the
@@ -51,6 +52,7 @@ class VcrFrame:
     points: torch.Tensor
     features: torch.Tensor
     distinct_points: int = -1
+    attended: tuple[torch.Tensor, torch.Tensor] | None = None
 
 
 class VcrRegistrar:
@@ -107,12 +109,19 @@ class VcrRegistrar:
 
     @torch.inference_mode()
     def prepare_batch(self, frames: Sequence[Points]) -> list[VcrFrame]:
-        """Pre-process each frame (CPU), then encode them all in one forward pass."""
+        """Pre-process each frame (CPU), then encode and self-attend them all in one forward pass:
+        done once per frame, not once per pair (a frame is the source of one pair, the target of the next)."""
         inputs = [self.network_input(points) for points in frames]
         distinct = [len(np.unique(xyz, axis=0)) for xyz in inputs]
         tensor = torch.as_tensor(np.stack(inputs), dtype=torch.float32, device=self.device)
         features = self.model.encode(tensor)
-        return [VcrFrame(tensor[i : i + 1], features[i : i + 1], distinct[i]) for i in range(len(frames))]
+        psi, weights = self.model.attend(tensor, features)
+        return [
+            VcrFrame(
+                tensor[i : i + 1], features[i : i + 1], distinct[i], (psi[i : i + 1], weights[i : i + 1])
+            )
+            for i in range(len(frames))
+        ]
 
     @torch.inference_mode()
     def register(
@@ -130,16 +139,26 @@ class VcrRegistrar:
         source_features = torch.cat([f.features for f in sources])
         target_points = torch.cat([f.points for f in targets])
         target_features = torch.cat([f.features for f in targets])
+        source_attended, target_attended = _attended(sources), _attended(targets)
         transforms = np.tile(np.eye(4), (len(pairs), 1, 1))
         for pass_index in range(self.passes):
-            if pass_index:
+            if pass_index:  # the moved source is a new cloud: encoded and attended afresh
                 moved = _moved(source_points, transforms)
                 output = self.model.register_features(
-                    moved, self.model.encode(moved), target_points, target_features
+                    moved,
+                    self.model.encode(moved),
+                    target_points,
+                    target_features,
+                    target_attended=target_attended,
                 )
             else:
                 output = self.model.register_features(
-                    source_points, source_features, target_points, target_features
+                    source_points,
+                    source_features,
+                    target_points,
+                    target_features,
+                    source_attended=source_attended,
+                    target_attended=target_attended,
                 )
             transforms = _project_finite(output.transform) @ transforms
         # Spread of the last pass: the one whose correspondences gave the final rotation.
@@ -161,6 +180,14 @@ def default_passes(config: VcrConfig) -> int:
     features (to float rounding), hence the same correspondences, and a second pass returns the
     identity at twice the cost. Two for the legacy ``xyz`` encoder (:data:`DEFAULT_PASSES`)."""
     return 1 if config.encoder == "invariant" else DEFAULT_PASSES
+
+
+def _attended(frames: Sequence[VcrFrame]) -> tuple[torch.Tensor, torch.Tensor] | None:
+    """The frames' self-attention, batched, where every frame carries it (else None: computed)."""
+    attended = [frame.attended for frame in frames]
+    if any(item is None for item in attended):
+        return None
+    return torch.cat([item[0] for item in attended]), torch.cat([item[1] for item in attended])  # type: ignore[index]
 
 
 def _project_finite(transform: torch.Tensor) -> NDArray[np.float64]:
