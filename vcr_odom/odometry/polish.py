@@ -167,7 +167,7 @@ def _icp_result(result: RegistrationResult, start: str) -> PolishResult:
 
 POLISH_CONVERGENCE = 1e-3
 """kiss-icp's registration stops when its update is below this (kiss-icp's own default: 1e-4, which
-the baseline keeps). On the sample the polish is as accurate at 1e-3, with a quarter less CPU per frame;
+the baseline keeps). On the sample the polish is as accurate at 1e-3, with about 30 % less CPU a frame;
 README "Benchmarks and speed" has the figures, kiss-icp's own at 1e-3 beside them."""
 
 
