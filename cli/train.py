@@ -52,7 +52,21 @@ def _source_options(function: F) -> F:
         show_default=True,
         help="Model configuration (sets the number of points per cloud).",
     )(function)
+    function = click.option(
+        "--input-max-range",
+        type=click.FloatRange(min=0.0, min_open=True),
+        default=None,
+        help="Metres of each scan the network sees (default: the preset's, 40 m). Cache and train at "
+        "the crop the weights will run with: the shipped file runs with 80 m.",
+    )(function)
     return config_options(FrameSource, SOURCE[:2], NAMES, EXTRA)(function)
+
+
+def _model_config(options: dict[str, Any]) -> VcrConfig:
+    """The preset, with ``--input-max-range`` where given."""
+    config = VcrConfig.preset(options["preset"])
+    crop = options.get("input_max_range")
+    return config if crop is None else config.with_changes(input_max_range=crop)
 
 
 def _training_options(function: F) -> F:
@@ -79,13 +93,13 @@ def _settings(kind: type[S], options: dict[str, Any], names: tuple[str, ...]) ->
     required=True,
     help="The .npz file to write (one sequence: give one --seq).",
 )
-def cache(preset: str, out: Path, **options: Any) -> None:
+def cache(out: Path, **options: Any) -> None:
     """Ground-remove and down-sample a sequence once into a compact training cache (.npz)."""
     if len(options["seqs"]) != 1:
         raise click.BadParameter("give exactly one --seq per cache file", param_hint="--seq")
     source = _settings(FrameSource, options, SOURCE)
     with _progress() as (frames, _):
-        built = cache_sequence(source, VcrConfig.preset(preset), out, progress=frames)
+        built = cache_sequence(source, _model_config(options), out, progress=frames)
     console.print(f"{len(built.frame_indices)} frames x {source.copies} copies written to {out}")
 
 
@@ -111,7 +125,7 @@ def _run(task: str, options: dict[str, Any]) -> None:
         result = fit_on(
             task,
             data,
-            VcrConfig.preset(options["preset"]),
+            _model_config(options),
             config,
             resume=options["resume"],
             progress=events,

@@ -119,3 +119,32 @@ def test_bad_training_options_are_usage_errors(tmp_path):
         result = CliRunner().invoke(cli, [command, *[str(a) for a in args]])
         assert result.exit_code == 2, result.output
         assert expected in result.output
+
+
+def test_caches_carry_their_crop_and_training_refuses_one_the_model_would_not_see(synthetic_root, tmp_path):
+    """The shipped file runs with an 80 m crop: a cache made for it says so, and training a 40 m
+    model on it (or the other way round) stops with the cache's name and both crops."""
+    from vcr_odom.data.frame_cache import FrameCache
+
+    wide = tmp_path / "wide.npz"
+    invoke(
+        "cache",
+        "--data-root",
+        synthetic_root,
+        "--seq",
+        "00",
+        "--frames",
+        "0:6",
+        "--input-max-range",
+        "80",
+        "--out",
+        wide,
+    )
+    assert FrameCache.load(wide).preprocess["max_range"] == 80.0
+    result = CliRunner().invoke(
+        cli,
+        ["train", "--cache", str(wide), "--epochs", "1", "--device", "cpu", "--out", str(tmp_path / "run")],
+    )
+    assert result.exit_code != 0
+    assert "wide.npz" in result.output and "80 m" in result.output and "40 m" in result.output
+    assert not (tmp_path / "run" / "best.safetensors").exists()

@@ -147,9 +147,23 @@ def training_sets(
     """Training and validation pairs of ``data`` (caches loaded, sequences pre-processed), each pair
     drawn from ``seed``; validation frames are contiguous blocks never seen in training."""
     caches = [FrameCache.load(path, num_points=model_config.num_points) for path in data.caches]
+    for path, cache in zip(data.caches, caches, strict=True):
+        check_cache_crop(path, cache, model_config)
     caches += sequence_caches(data, model_config, progress)
     pairs = data.pair_configs(model_config.num_points, seed)
     return train_val_datasets(caches, pairs, data.val_fraction)
+
+
+def check_cache_crop(path: Path, cache: FrameCache, model_config: VcrConfig) -> None:
+    """ConfigError where a cache was cropped otherwise than the network being trained will see its
+    clouds: the weights would run on clouds unlike the ones they were fitted to."""
+    crop = cache.preprocess.get("max_range")
+    if crop is not None and float(crop) != model_config.input_max_range:
+        raise ConfigError(
+            f"frame cache {path} was cropped at {float(crop):g} m, the model sees "
+            f"{model_config.input_max_range:g} m; rebuild it with `vcr-odom cache --input-max-range "
+            f"{model_config.input_max_range:g}` or train with --input-max-range {float(crop):g}"
+        )
 
 
 TRAINING_TASKS = {"train": train, "pretrain": pretrain}
