@@ -31,25 +31,14 @@ HELD_OUT_DRIVES = (
 """(sensor, seed, scene) of the synthetic drives: seeds no cache or tuning run used."""
 
 
-def _kiss_config(criterion: float) -> Any:
+def _method(name: str, criterion: float, weights: Path | None, device: str) -> Any:
+    from vcr_odom.odometry import build_odometry
     from vcr_odom.registration.kiss import kiss_config
 
-    config = kiss_config()
-    config.registration.convergence_criterion = criterion
-    return config
-
-
-def _method(name: str, criterion: float, weights: Path | None, device: str) -> Any:
-    from vcr_odom.odometry import KissIcpPolish, build_odometry
-    from vcr_odom.registration.kiss import KissIcpOdometry
-
     if name == "kiss-icp":
-        method = KissIcpOdometry()
-        method.config = _kiss_config(criterion)
-        return method
-    method = build_odometry("vcr+kiss-icp", weights=weights, device=device)
-    method.polish = KissIcpPolish(_kiss_config(criterion))
-    return method
+        return build_odometry("kiss-icp", convergence_criterion=criterion)
+    polish = {"config": kiss_config(convergence_criterion=criterion)}
+    return build_odometry("vcr+kiss-icp", weights=weights, device=device, polish_options=polish)
 
 
 def _rows(label: str, sequence: Any, indices: list[int], gt: Any, args: Any) -> list[list[str]]:

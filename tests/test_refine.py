@@ -227,6 +227,8 @@ def test_the_polish_stops_earlier_than_kiss_icp_and_lands_where_kiss_icp_does() 
 
     assert KissIcpPolish().config.registration.convergence_criterion == POLISH_CONVERGENCE
     assert kiss_config().registration.convergence_criterion < POLISH_CONVERGENCE
+    with pytest.raises(ConfigError, match="convergence_criterion"):
+        kiss_config(convergence_criterion=0.0)
     sequence = SynthSequence(frames=30, seed=5)
     gt = normalise_to_first(sequence.gt_poses)
     poses = [

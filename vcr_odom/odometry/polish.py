@@ -173,9 +173,7 @@ README "Benchmarks and speed" has the figures, kiss-icp's own at 1e-3 beside the
 
 def polish_kiss_config() -> KISSConfig:
     """kiss-icp's configuration for the polish: its default, with :data:`POLISH_CONVERGENCE`."""
-    config = kiss_config()
-    config.registration.convergence_criterion = POLISH_CONVERGENCE
-    return config
+    return kiss_config(convergence_criterion=POLISH_CONVERGENCE)
 
 
 class KissIcpPolish:

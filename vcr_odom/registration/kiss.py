@@ -22,11 +22,13 @@ def kiss_config(
     voxel_size: float | None = None,
     deskew: bool = False,
     max_num_threads: int = 0,
+    convergence_criterion: float | None = None,
 ) -> KISSConfig:
     """kiss-icp's default configuration (``load_config(None)``) with our data settings.
 
     ``deskew=False``: KITTI ``.bin`` scans carry no per-point times (kiss-icp's own KITTI reader
     passes none either). ``voxel_size=None`` follows kiss-icp's rule ``max_range / 100``.
+    ``convergence_criterion=None`` keeps kiss-icp's own (1e-4); the polish stops earlier.
     """
     if not 0.0 <= min_range < max_range:
         raise ConfigError(f"need 0 <= min_range < max_range; got {min_range}, {max_range}")
@@ -36,6 +38,10 @@ def kiss_config(
     config.data.deskew = bool(deskew)
     config.mapping.voxel_size = float(max_range / 100.0 if voxel_size is None else voxel_size)
     config.registration.max_num_threads = int(max_num_threads)
+    if convergence_criterion is not None:
+        if not convergence_criterion > 0:
+            raise ConfigError(f"convergence_criterion must be > 0; got {convergence_criterion}")
+        config.registration.convergence_criterion = float(convergence_criterion)
     return config
 
 
@@ -65,8 +71,11 @@ class KissIcpOdometry:
         deskew: bool = False,
         kitti_correction: bool = False,
         max_num_threads: int = 0,
+        convergence_criterion: float | None = None,
     ) -> None:
-        self.config = kiss_config(max_range, min_range, voxel_size, deskew, max_num_threads)
+        self.config = kiss_config(
+            max_range, min_range, voxel_size, deskew, max_num_threads, convergence_criterion
+        )
         self.kitti_correction = kitti_correction
         self._odometry = KissICP(self.config)
 
