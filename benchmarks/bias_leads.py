@@ -114,6 +114,8 @@ def match_agreement(
                     frames[source].features,
                     frames[target].points,
                     frames[target].features,
+                    source_attended=frames[source].attended,
+                    target_attended=frames[target].attended,
                 )
             key = out.key_points[0].double().numpy()
             virtual = out.virtual_points[0].double().numpy()
