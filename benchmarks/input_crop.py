@@ -1,18 +1,20 @@
-"""How far the network should see: VCR alone, one pass, for several input crops, on KITTI frames and
-on synthetic drives of each sensor model.
+"""How far and how densely the network should see: VCR alone, one pass, for several input crops and
+point counts, on KITTI frames and on synthetic drives of each sensor model.
 
-Not a test. The crop (``input_max_range``) acts only at inference, so one weight file runs with each;
-``scripts/set_inference_settings.py`` then ships the chosen one. Choose on one set of frames and
-seeds, confirm on another:
+Not a test. The crop (``input_max_range``) and the point count (``num_points``) act only at inference,
+so one weight file runs with each; ``scripts/set_inference_settings.py`` then ships the chosen one.
+Choose on one set of frames and seeds, confirm on another:
 
     .venv/bin/python benchmarks/input_crop.py --data-root ../shared/data/kitti-sample --seq 00 \\
-        --frames 0:40 --first-seed 201 [--crop 40 --crop 50 --crop 60 --crop 80] [--gap 1 --gap 5 --gap 10]
+        --frames 0:40 --first-seed 201 [--crop 40 --crop 50 --crop 60 --crop 80] [--gap 1 --gap 5 --gap 10] \\
+        [--points 512 --points 1024]
     .venv/bin/python benchmarks/input_crop.py --data-root ../shared/data/kitti-sample --seq 00 \\
         --frames 40:60 --first-seed 301
 
 Synthetic drives: seeds ``first-seed`` .. ``first-seed + 3`` with HDL-64E, HDL-32E, VLP-16 and OS1-128
 (40 frames, 12 m/s). Prints one markdown table: success (< 2°, < 0.5 m) and est/true length per
-set, gap and crop, and the mean success over the sets.
+set, gap and variant (every crop with every point count; without ``--points``, the file's own), and the
+mean success over the sets.
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ def main() -> None:
     parser.add_argument("--weights", type=Path, default=None)
     parser.add_argument("--crop", type=float, action="append", help="metres (repeat); default 40 50 60 80")
     parser.add_argument("--gap", type=int, action="append", help="frames apart (repeat); default 1 5 10")
+    parser.add_argument("--points", type=int, action="append", help="points fed (repeat); default the file's")
     parser.add_argument("--first-seed", type=int, default=201)
     parser.add_argument("--synth-frames", type=int, default=40)
     args = parser.parse_args()
@@ -48,7 +51,12 @@ def main() -> None:
     weights = args.weights or default_weights_path("default")
     crops = args.crop or [40.0, 50.0, 60.0, 80.0]
     gaps = args.gap or [1, 5, 10]
-    variants = [vcr_variant(weights, f"{crop:g} m", input_max_range=crop) for crop in crops]
+    points = args.points or [None]
+    variants = [
+        vcr_variant(weights, _label(crop, count), input_max_range=crop, **_points(count))
+        for crop in crops
+        for count in points
+    ]
     kitti = open_sequence(args.seq, data_root=args.data_root)
     sets = [(f"{kitti.name} {args.frames or 'all'}", kitti, select_frames(len(kitti), args.frames))]
     for offset, sensor in enumerate(SENSORS):
@@ -56,21 +64,30 @@ def main() -> None:
         drive = SynthSequence(frames=args.synth_frames, seed=seed, sensor=sensor, speed=12.0)
         sets.append((f"{sensor} seed {seed}", drive, list(range(len(drive)))))
 
-    success: dict[tuple[int, float], list[float]] = {}
-    print("| set | gap | " + " | ".join(f"{crop:g} m: success, ratio" for crop in crops) + " |")
-    print("|---|---:|" + "---|" * len(crops))
-    for label, sequence, frames in sets:
+    success: dict[tuple[int, str], list[float]] = {}
+    labels = [_label(crop, count) for crop in crops for count in points]
+    print("| set | gap | " + " | ".join(f"{label}: success, ratio" for label in labels) + " |")
+    print("|---|---:|" + "---|" * len(labels))
+    for name, sequence, frames in sets:
         rows = run_gap_sweep(sequence, frames, variants, gaps).rows
         for gap in gaps:
             cells = []
-            for crop, variant in zip(crops, variants, strict=True):
+            for column, variant in zip(labels, variants, strict=True):
                 row = next(r for r in rows if r.method == variant.name and r.gap == gap)
-                success.setdefault((gap, crop), []).append(row.errors.success_rate)
+                success.setdefault((gap, column), []).append(row.errors.success_rate)
                 cells.append(f"{100 * row.errors.success_rate:.0f} %, {row.length_ratio:.3f}")
-            print(f"| {label} | {gap} | " + " | ".join(cells) + " |")
+            print(f"| {name} | {gap} | " + " | ".join(cells) + " |")
     for gap in gaps:
-        means = [100 * sum(success[gap, crop]) / len(success[gap, crop]) for crop in crops]
+        means = [100 * sum(success[gap, label]) / len(success[gap, label]) for label in labels]
         print(f"| mean success | {gap} | " + " | ".join(f"{mean:.1f} %" for mean in means) + " |")
+
+
+def _points(count: int | None) -> dict[str, int]:
+    return {} if count is None else {"num_points": count}
+
+
+def _label(crop: float, points: int | None) -> str:
+    return f"{crop:g} m" if points is None else f"{crop:g} m, {points} points"
 
 
 if __name__ == "__main__":

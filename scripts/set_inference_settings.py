@@ -1,8 +1,8 @@
 """Change how a trained VCR-Net weight file runs at inference, without touching its tensors.
 
-Some settings of the stored configuration act only at inference (the input crop, the pose head's
-robust rounds and consensus, the pointer sharpening). Choosing them on figures is part of shipping a
-file, so this writes a copy with new values and records the change in its metadata
+Some settings of the stored configuration act only at inference (the point count and the input
+crop, the pose head's robust rounds and consensus, the pointer sharpening: ``INFERENCE_FIELDS``).
+Choosing them on figures is part of shipping a file, so this writes a copy with new values and records the change in its metadata
 (``inference_settings``: what was set and the note given, appended to earlier entries):
 
     .venv/bin/python scripts/set_inference_settings.py weights/vcr-default.safetensors \\
@@ -18,19 +18,11 @@ import argparse
 import sys
 from pathlib import Path
 
-INFERENCE_FIELDS = (
-    "input_max_range",
-    "robust_iterations",
-    "robust_scale",
-    "consensus_hypotheses",
-    "consensus_threshold",
-    "inference_sharpening",
-)
-"""Fields of VcrConfig that change nothing the weights were fitted to (training uses its own crop cache)."""
+from vcr_odom.model.config import INFERENCE_FIELDS, VcrConfig
 
 
-def parse_assignments(assignments: list[str]) -> dict[str, str]:
-    changes: dict[str, str] = {}
+def parse_assignments(assignments: list[str]) -> dict[str, object]:
+    changes: dict[str, object] = {}
     for assignment in assignments:
         name, equals, value = assignment.partition("=")
         name = name.strip()
@@ -40,8 +32,18 @@ def parse_assignments(assignments: list[str]) -> dict[str, str]:
             raise SystemExit(
                 f"--set {name}: not an inference-only setting; valid: {', '.join(INFERENCE_FIELDS)}"
             )
-        changes[name] = value.strip()
+        changes[name] = _typed(name, value.strip())
     return changes
+
+
+def _typed(name: str, value: str) -> object:
+    """Integer fields are strict (a weight file stores plain ints), so ``num_points=1024`` is parsed."""
+    if VcrConfig.model_fields[name].annotation is int:
+        try:
+            return int(value)
+        except ValueError:
+            raise SystemExit(f"--set {name}: expected a whole number; got {value!r}") from None
+    return value
 
 
 def main(argv: list[str] | None = None) -> None:

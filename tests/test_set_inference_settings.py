@@ -53,3 +53,24 @@ def test_an_architecture_field_or_a_bad_value_is_refused_by_name_and_nothing_is_
     assert invalid.returncode != 0
     assert "input_max_range" in invalid.stderr
     assert source.read_bytes() == before
+
+
+def test_the_point_count_is_an_inference_setting_parsed_as_a_whole_number(tmp_path: Path) -> None:
+    """No tensor depends on N, so a file trained on 512 points can ship with 1024 (the model card)."""
+    source = _weights(tmp_path)
+    out = tmp_path / "n128.safetensors"
+    done = _run(str(source), "--set", "num_points=128", "--note", "denser", "--out", str(out))
+    assert done.returncode == 0, done.stderr
+    _, config, _ = read_weights(out)
+    assert config.num_points == 128
+    model = VCRNet(config)
+    model.load_state_dict(read_weights(out)[0])
+    with torch.no_grad():
+        output = model(torch.randn(1, 128, 3) * 10.0, torch.randn(1, 128, 3) * 10.0)
+    assert output.key_points.shape == (1, config.key_points(128), 3)
+    refused = _run(
+        str(source), "--set", "num_points=1e3", "--note", "x", "--out", str(tmp_path / "bad.safetensors")
+    )
+    assert refused.returncode != 0
+    assert "num_points" in refused.stderr and "whole number" in refused.stderr
+    assert not (tmp_path / "bad.safetensors").exists()

@@ -17,7 +17,7 @@ from torch.utils.data import Dataset
 
 from vcr_odom.errors import ConfigError, DataError
 from vcr_odom.model import VcrConfig
-from vcr_odom.model.weights import load_weights
+from vcr_odom.model.weights import load_weights, save_weights
 from vcr_odom.training import ProgressEvent, TrainConfig, pose_errors, pretrain, resolve_device, train
 
 TINY = VcrConfig(
@@ -163,6 +163,25 @@ def test_pretrain_trains_the_encoder_only_and_feeds_train(tmp_path: Path) -> Non
     )
     for name, value in pretrained.encoder.state_dict().items():
         assert torch.allclose(value, fresh.model.encoder.state_dict()[name], atol=1e-6), name
+
+
+def test_a_fine_tune_starts_from_a_file_whose_inference_settings_were_changed_but_not_another_network(
+    tmp_path: Path,
+) -> None:
+    """The shipped file runs with more points and a wider crop than it was trained with; fine-tuning
+    from it must start from its tensors with the trainer's settings, and still refuse other layers."""
+    data = RandomPairs(2)
+    first = train(TINY, data, data, _config(tmp_path / "first", epochs=1))
+    shipped = TINY.with_changes(num_points=2 * TINY.num_points, input_max_range=80.0, consensus_hypotheses=7)
+    path = save_weights(tmp_path / "shipped.safetensors", first.model, shipped, {})
+    tuned = train(TINY, data, data, _config(tmp_path / "tuned", epochs=1, init_weights=path, lr=1e-12))
+    assert tuned.model.config == TINY
+    for name, value in first.model.state_dict().items():
+        assert torch.allclose(value, tuned.model.state_dict()[name], atol=1e-6), name
+    with pytest.raises(DataError, match="top_j: file 4, requested 8"):
+        train(
+            TINY.with_changes(top_j=8), data, data, _config(tmp_path / "other", epochs=1, init_weights=path)
+        )
 
 
 def test_cuda_without_cuda_is_a_config_error(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

@@ -37,6 +37,22 @@ LEGACY_VALUES: dict[str, object] = {
 }
 """What a weight file that lacks a field was trained with."""
 
+INFERENCE_FIELDS: tuple[str, ...] = (
+    "num_points",
+    "input_max_range",
+    "robust_iterations",
+    "robust_scale",
+    "consensus_hypotheses",
+    "consensus_threshold",
+    "inference_sharpening",
+)
+"""Fields no tensor was fitted to: a file can run with other values than it was trained with.
+
+Why ``num_points`` is among them: every layer is shared over points (pointwise MLPs, kNN EdgeConv,
+attention), so no tensor's shape or meaning depends on N; the shipped file was trained on 512-point
+clouds and runs on 1024 (``weights/MODEL_CARD.md``). The crop and the point count still shape what
+*training* sees, so caches are checked against the model being trained, not against an init file."""
+
 
 def _count(default: int, minimum: int, description: str) -> Any:
     """An integer field (no bool, no float, no numpy integer: a weight file stores plain ints)."""

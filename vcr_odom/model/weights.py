@@ -20,7 +20,7 @@ from safetensors.torch import save as save_safetensors
 
 from vcr_odom.errors import ConfigError, DataError
 from vcr_odom.io import atomic_write_bytes
-from vcr_odom.model.config import PRESETS, VcrConfig
+from vcr_odom.model.config import INFERENCE_FIELDS, PRESETS, VcrConfig
 from vcr_odom.model.network import VCRNet
 
 FORMAT = "vcr-odom-weights/1"
@@ -135,15 +135,23 @@ def check_finite(path: Path, tensors: dict[str, torch.Tensor]) -> None:
 
 
 def load_weights(
-    path: str | os.PathLike[str], config: VcrConfig | None = None, device: str | torch.device = "cpu"
+    path: str | os.PathLike[str],
+    config: VcrConfig | None = None,
+    device: str | torch.device = "cpu",
+    *,
+    inference_from_config: bool = False,
 ) -> tuple[VCRNet, VcrConfig, dict[str, Any]]:
     """Rebuild the VCRNet stored in ``path`` (in eval mode, on ``device``).
 
     With ``config``, the file must have been trained with exactly that configuration; otherwise the
-    file's own configuration is used.
+    file's own configuration is used. ``inference_from_config``: only the fields tensors were fitted
+    to must agree, and the model runs with ``config``'s :data:`INFERENCE_FIELDS` (a fine-tune starting
+    from a shipped file whose point count or crop was changed after training).
     """
     path = Path(path)
     tensors, stored, metadata = read_weights(path)
+    if config is not None and inference_from_config:
+        stored = stored.with_changes(**{name: getattr(config, name) for name in INFERENCE_FIELDS})
     if config is not None and config != stored:
         wanted, found = config.to_dict(), stored.to_dict()
         diffs = [f"{k}: file {found[k]!r}, requested {wanted[k]!r}" for k in wanted if wanted[k] != found[k]]

@@ -151,7 +151,7 @@ def _start(
         torch.backends.cudnn.benchmark = False
     seed_everything(config.seed + ctx.rank)
     if config.init_weights is not None and not resume:
-        net, _, _ = load_weights(config.init_weights, model_config)
+        net, _, _ = load_weights(config.init_weights, model_config, inference_from_config=True)
     else:
         net = VCRNet(model_config)
     net.to(device).train()
