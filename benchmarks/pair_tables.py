@@ -21,7 +21,12 @@ from sequence_args import sequence_parser
 
 def main() -> None:
     parser = sequence_parser(__doc__)
-    parser.add_argument("--points", type=int, default=512, help="points per cloud (the VCR weights' N)")
+    parser.add_argument(
+        "--points",
+        type=int,
+        default=None,
+        help="points per cloud (default: the first VCR weights' N, else 512)",
+    )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--weights", type=Path, action="append", default=[], help="VCR weights (repeat)")
     parser.add_argument("--fpfh-radius-factor", type=float, default=10.0, help="the tuned FPFH row")
@@ -48,15 +53,18 @@ def main() -> None:
         method.name = f"vcr ({path.stem}, {passes} pass{'es' if passes > 1 else ''})"
         return method
 
-    # Every row sees the clouds the (first) VCR weights were trained on: their input range.
-    crop = read_weights(args.weights[0])[1].input_max_range if args.weights else 80.0
-    for kind, pairs in pair_sets(sequence, frames, args.points, args.seed, max_range=crop).items():
+    # Every row sees the clouds the (first) VCR weights run on: their input range and point count (a
+    # cloud of fewer points would reach the network with repeated points, which its kNN graphs never saw).
+    first = read_weights(args.weights[0])[1] if args.weights else None
+    crop = first.input_max_range if first else 80.0
+    points = args.points or (first.num_points if first else 512)
+    for kind, pairs in pair_sets(sequence, frames, points, args.seed, max_range=crop).items():
         methods = ["icp10", "fpfh", tuned_fpfh(), *[vcr(w, p) for w in args.weights for p in (1, 2)]]
         methods += [PolishedRegistrar(tuned_fpfh(), SparseIcp())]
         # As compare's vcr+icp: one network pass before the polish (POLISHED_VCR_PASSES).
         methods += [PolishedRegistrar(vcr(w, POLISHED_VCR_PASSES), SparseIcp()) for w in args.weights]
         results = evaluate_pair_protocol(methods, pairs)
-        print(f"\n{kind}: {len(pairs)} pairs of {args.points} points, frames {frames[0]}-{frames[-1]}\n")
+        print(f"\n{kind}: {len(pairs)} pairs of {points} points, frames {frames[0]}-{frames[-1]}\n")
         print("| method | rot RMSE / MAE [deg] | trans RMSE / MAE [m] | success | ms / pair |")
         print("|---|---|---|---|---|")
         for name, result in results.items():
