@@ -2,7 +2,8 @@
 
 FLOPs come from ``torch.utils.flop_counter.FlopCounterMode`` on one batch-1 forward (matmuls, linear
 layers and scaled dot-product attention, counted as 2 per multiply-add); elementwise work, top-k, gathers
-and the 3x3 SVD are not counted. Run ``python -m vcr_odom.model.profile`` for both presets.
+and the 3x3 SVD are not counted. Run ``python -m vcr_odom.model.profile`` for both presets and the
+shipped weights.
 """
 
 from __future__ import annotations
@@ -100,8 +101,16 @@ def describe(config: VcrConfig | str, measure_speed: bool = False) -> dict[str, 
 
 
 def main() -> None:
-    for name in PRESETS:
-        info = describe(name, measure_speed=True)
+    """Both presets, then the shipped file's configuration: it runs with more points than its preset
+    (the point count is an inference setting, ``weights/MODEL_CARD.md``), which is what it costs."""
+    from vcr_odom.model.weights import default_weights_path, read_weights
+
+    configs: list[tuple[str, VcrConfig | str]] = [(name, name) for name in PRESETS]
+    shipped = default_weights_path("default", must_exist=False)
+    if shipped.is_file():
+        configs.append(("shipped", read_weights(shipped)[1]))
+    for name, config in configs:
+        info = describe(config, measure_speed=True)
         params = info["parameters"]["trainable"]
         print(
             f"{name:8s} N={info['config']['num_points']:5d} params={params:,} "
