@@ -148,3 +148,27 @@ def test_caches_carry_their_crop_and_training_refuses_one_the_model_would_not_se
     assert result.exit_code != 0
     assert "wide.npz" in result.output and "80 m" in result.output and "40 m" in result.output
     assert not (tmp_path / "run" / "best.safetensors").exists()
+
+
+def test_the_point_count_is_an_option_of_cache_and_train_and_must_agree(synthetic_root, tmp_path):
+    """The shipped file runs on 1024 points: a cache and a fine-tune can be made at any count, and a
+    cache of another count is refused by name before any training."""
+    from vcr_odom.data.frame_cache import FrameCache
+
+    small = tmp_path / "small.npz"
+    invoke(
+        "cache", "--data-root", synthetic_root, "--seq", "00", "--num-points", "64", "--out", small,
+    )  # fmt: skip
+    assert FrameCache.load(small).num_points == 64
+    refused = CliRunner().invoke(
+        cli, ["train", "--cache", str(small), "--epochs", "1", "--device", "cpu", "--out", str(tmp_path / "r")]
+    )
+    assert refused.exit_code != 0
+    assert "small.npz" in refused.output and "512" in refused.output
+    invoke(
+        "train", "--cache", small, "--num-points", "64", "--epochs", "1", "--batch-size", "2",
+        "--device", "cpu", "--out", tmp_path / "run",
+    )  # fmt: skip
+    assert (tmp_path / "run" / "best.safetensors").is_file()
+    bad = CliRunner().invoke(cli, ["train", "--cache", str(small), "--num-points", "8", "--out", str(tmp_path)])
+    assert bad.exit_code == 2 and "num_points" in bad.output
