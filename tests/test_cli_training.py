@@ -161,7 +161,8 @@ def test_the_point_count_is_an_option_of_cache_and_train_and_must_agree(syntheti
     )  # fmt: skip
     assert FrameCache.load(small).num_points == 64
     refused = CliRunner().invoke(
-        cli, ["train", "--cache", str(small), "--epochs", "1", "--device", "cpu", "--out", str(tmp_path / "r")]
+        cli,
+        ["train", "--cache", str(small), "--epochs", "1", "--device", "cpu", "--out", str(tmp_path / "r")],
     )
     assert refused.exit_code != 0
     assert "small.npz" in refused.output and "512" in refused.output
@@ -170,5 +171,7 @@ def test_the_point_count_is_an_option_of_cache_and_train_and_must_agree(syntheti
         "--device", "cpu", "--out", tmp_path / "run",
     )  # fmt: skip
     assert (tmp_path / "run" / "best.safetensors").is_file()
-    bad = CliRunner().invoke(cli, ["train", "--cache", str(small), "--num-points", "8", "--out", str(tmp_path)])
+    bad = CliRunner().invoke(
+        cli, ["train", "--cache", str(small), "--num-points", "8", "--out", str(tmp_path)]
+    )
     assert bad.exit_code == 2 and "num_points" in bad.output
