@@ -50,6 +50,7 @@ def measure(args: argparse.Namespace) -> dict:
     options: dict = {"consult": consult} if consult else {}
     if parse_method_spec(spec)[0] == "vcr":
         options |= {"weights": args.weights, "device": args.device, "batch_size": args.batch_size}
+        options |= {"num_points": args.vcr_points}
     method = build_odometry(spec, **options)
     profile = StageProfile()
     rss: list[tuple[int, float]] = []
@@ -102,6 +103,8 @@ def run_worker(method: str, args: argparse.Namespace, data_root: Path) -> dict:
         command += ["--frames", args.frames]
     if args.weights:
         command += ["--weights", str(args.weights)]
+    if args.vcr_points:
+        command += ["--vcr-points", str(args.vcr_points)]
     command += ["--device", args.device]
     if args.batch_size is not None:
         command += ["--batch-size", str(args.batch_size)]
@@ -170,7 +173,7 @@ def network_throughput(args: argparse.Namespace, data_root: Path) -> list[dict]:
     from vcr_odom.data.selection import select_frames
     from vcr_odom.registration.vcr import VcrRegistrar
 
-    registrar = VcrRegistrar(args.weights, args.device)
+    registrar = VcrRegistrar(args.weights, args.device, num_points=args.vcr_points)
     sequence = open_sequence(args.seq, data_root=data_root)
     indices = select_frames(len(sequence), args.frames, args.stride)
     largest = max(args.network_batch)
@@ -226,6 +229,7 @@ def main() -> None:
     parser.add_argument("--frames", default=None)
     parser.add_argument("--stride", type=int, default=1)
     parser.add_argument("--weights", type=Path, help="VCR-Net weights for --method vcr")
+    parser.add_argument("--vcr-points", type=int, help="points VCR-Net is fed (default: the weights' own)")
     parser.add_argument(
         "--device", default="auto", choices=["auto", "cpu", "cuda"], help="where VCR-Net runs"
     )

@@ -180,8 +180,8 @@ def describe_methods() -> str:
 
 
 def vcr_options(function: F) -> F:
-    """``--weights``, ``--device`` and ``--vcr-passes`` for the learned method (ignored by the others),
-    and ``--consult`` for any polished global method."""
+    """``--weights``, ``--device``, ``--vcr-passes`` and ``--vcr-points`` for the learned method (refused
+    for the others), and ``--consult`` for any polished global method."""
     from vcr_odom.odometry.chain import CONSULT_CHOICES
     from vcr_odom.odometry.factory import DEFAULT_CONSULT
 
@@ -201,6 +201,13 @@ def vcr_options(function: F) -> F:
         help="VCR-Net passes per pair: each pass after the first registers the source moved by the "
         "estimate so far. Default: 1 (2 unpolished for legacy xyz-encoder weights, whose features "
         "change with the source's position; the invariant encoder's do not).",
+    )(function)
+    function = click.option(
+        "--vcr-points",
+        type=click.IntRange(min=4),
+        default=None,
+        help="Points VCR-Net is fed per scan. Default: the weights' own (1024 for the shipped file, "
+        "trained on 512): 512 halves the network's time, and misses more motions ~10 m long.",
     )(function)
     function = click.option(
         "--device",

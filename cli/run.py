@@ -23,7 +23,12 @@ from vcr_odom.odometry.polish import POLISHES
 from vcr_odom.odometry.run import RunSettings, run_sequence
 from vcr_odom.registration import METHOD_NAMES
 
-VCR_ONLY_OPTIONS = {"weights": "--weights", "vcr_passes": "--vcr-passes", "device": "--device"}
+VCR_ONLY_OPTIONS = {
+    "weights": "--weights",
+    "vcr_passes": "--vcr-passes",
+    "vcr_points": "--vcr-points",
+    "device": "--device",
+}
 
 
 def reject_unused_options(ctx: click.Context, specs: Iterable[str]) -> None:

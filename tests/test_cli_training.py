@@ -50,10 +50,16 @@ def test_cache_train_resume_and_run_with_the_trained_weights(synthetic_root, tmp
         weights,
         "--device",
         "cpu",
+        "--vcr-points",
+        "256",
         "--frames",
         ":4",
         "--results-dir",
         tmp_path / "results",
+    )
+    assert (
+        json.loads((tmp_path / "results" / "latest" / "config.json").read_text())["config"]["vcr_points"]
+        == 256
     )
     metrics = json.loads((tmp_path / "results" / "latest" / "metrics.json").read_text())
     # A global method gets the kiss-icp polish unless --refine says otherwise.

@@ -179,6 +179,8 @@ def test_bad_compare_combinations_fail_before_any_work(
 def test_vcr_options_without_vcr_are_refused_by_run(synthetic_root: Path, tmp_path: Path) -> None:
     result = invoke("run", "--data-root", synthetic_root, "--method", "icp", "--vcr-passes", "2")
     assert_fails(result, 2, "--vcr-passes")
+    result = invoke("run", "--data-root", synthetic_root, "--method", "kiss-icp", "--vcr-points", "512")
+    assert_fails(result, 2, "--vcr-points")
 
 
 # -- files that are not what they claim -------------------------------------------------------------

@@ -61,6 +61,22 @@ def test_an_n_point_cloud_is_used_as_it_is(weights: Path) -> None:
     np.testing.assert_array_equal(prepared.points[0].numpy(), cloud[:, :3])
 
 
+def test_the_point_count_can_be_chosen_at_inference_and_must_exceed_k(
+    weights: Path, synth: SynthSequence
+) -> None:
+    """``--vcr-points``: the same tensors run on another number of points (the weights' own is the
+    default); fewer than the kNN graphs need is refused by name."""
+    own, fewer = VcrRegistrar(weights, "cpu"), VcrRegistrar(weights, "cpu", num_points=64)
+    assert own.config.num_points == SMALL.num_points and fewer.config.num_points == 64
+    assert fewer.prepare(synth.frame(0)).points.shape == (1, 64, 3)
+    for name, tensor in own.model.state_dict().items():
+        assert torch.equal(tensor, fewer.model.state_dict()[name]), name
+    result = fewer.register(fewer.prepare(synth.frame(1)), fewer.prepare(synth.frame(0)))
+    assert np.isfinite(result.transform).all()
+    with pytest.raises(ConfigError, match=r"--vcr-points.*k = 8.*got 8"):
+        VcrRegistrar(weights, "cpu", num_points=8)
+
+
 def test_cpu_default_batch_is_one_and_bad_batch_is_refused(weights: Path) -> None:
     assert VcrRegistrar(weights, "cpu").batch_size == 1
     with pytest.raises(ConfigError, match="batch_size"):

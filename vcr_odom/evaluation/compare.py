@@ -65,11 +65,13 @@ class CompareSettings(Settings):
     weights: Path | None = None
     device: str = "auto"
     vcr_passes: int | None = Field(default=None, ge=1)
+    vcr_points: int | None = Field(default=None, ge=4)
     consult: Consult = DEFAULT_CONSULT
     results_dir: Path = Path("results")
 
     def method_options(self, spec: str) -> dict[str, Any]:
-        return vcr_options(spec.partition("+")[0].strip().lower(), self.weights, self.device, self.vcr_passes)
+        method = spec.partition("+")[0].strip().lower()
+        return vcr_options(method, self.weights, self.device, self.vcr_passes, self.vcr_points)
 
 
 @dataclass

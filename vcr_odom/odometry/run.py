@@ -55,6 +55,7 @@ class RunSettings(Settings):
     weights: Path | None = None
     device: str = "auto"
     vcr_passes: int | None = Field(default=None, ge=1)
+    vcr_points: int | None = Field(default=None, ge=4)
     consult: Consult = DEFAULT_CONSULT
     save_map: Path | None = None
     map_voxel: float = Field(default=0.5, ge=0.05)
@@ -77,9 +78,13 @@ class RunOutcome:
     voxel_map: VoxelMap | None
 
 
-def vcr_options(method: str, weights: Path | None, device: str, passes: int | None) -> dict[str, object]:
+def vcr_options(
+    method: str, weights: Path | None, device: str, passes: int | None, points: int | None = None
+) -> dict[str, object]:
     """Constructor options of ``method`` from the VCR-Net options (other methods take none)."""
-    return {"weights": weights, "device": device, "passes": passes} if method == "vcr" else {}
+    if method != "vcr":
+        return {}
+    return {"weights": weights, "device": device, "passes": passes, "num_points": points}
 
 
 def run_sequence(settings: RunSettings, progress: ProgressFactory | None = None) -> RunOutcome:
@@ -94,7 +99,13 @@ def run_sequence(settings: RunSettings, progress: ProgressFactory | None = None)
         spec,
         initial_guess=settings.initial_guess,
         consult=settings.consult,
-        **vcr_options(spec.partition("+")[0], settings.weights, settings.device, settings.vcr_passes),
+        **vcr_options(
+            spec.partition("+")[0],
+            settings.weights,
+            settings.device,
+            settings.vcr_passes,
+            settings.vcr_points,
+        ),
     )
     folder = create_result_folder(
         settings.results_dir,

@@ -68,6 +68,7 @@ class VcrRegistrar:
         seed: int = 0,
         batch_size: int | None = None,
         passes: int | None = None,
+        num_points: int | None = None,
     ) -> None:
         path = Path(weights) if weights is not None else default_weights_path("default")
         self.device = resolve_device(device)
@@ -79,6 +80,16 @@ class VcrRegistrar:
         if passes is not None and int(passes) < 1:
             raise ConfigError(f"passes must be >= 1; got {passes!r}")
         self.model, self.config, self.metadata = load_weights(path, device=str(self.device))
+        if num_points is not None and num_points != self.config.num_points:
+            # The point count is an inference setting (no tensor depends on it): trade the
+            # network's time against how many motions it finds (weights/MODEL_CARD.md).
+            if int(num_points) <= self.config.k:
+                raise ConfigError(
+                    f"num_points (--vcr-points) must exceed the network's k = {self.config.k} "
+                    f"neighbours of {path}; got {num_points}"
+                )
+            self.config = self.config.with_changes(num_points=int(num_points))
+            self.model.config = self.config
         self.passes = default_passes(self.config) if passes is None else int(passes)
         self.model.eval()
         self.weights_path = path
