@@ -141,6 +141,7 @@ def test_shipped_weights_measure_a_5_m_motion(shipped_pair) -> None:
     assert np.linalg.norm(estimate[:3, 3] - truth[:3, 3]) < 0.5
 
 
+@pytest.mark.filterwarnings("ignore:.*no timestamps:vcr_odom.errors.DataWarning")
 def test_shipped_weights_measure_10_m_motions_on_unseen_real_scans(kitti_sample_root) -> None:
     """Issue 9's hardest item, on the KITTI sample's test block (frames 40-59, never trained or tuned
     on): VCR alone, one pass, every pair 10 frames (~10 m) apart. Measured 100 % success, length ratio
