@@ -70,8 +70,8 @@ def reject_bad_combinations(ctx: click.Context, protocol: str, specs: tuple[str,
     "--pair-points",
     type=click.IntRange(min=64),
     default=None,
-    help="Points per cloud in the pairs protocol. Default: the VCR weights' N when a VCR row is "
-    "compared, else 1024 (the paper's).",
+    help="Points per cloud in the pairs protocol. Default: --vcr-points, else the VCR weights' N when "
+    "a VCR row is compared, else 1024 (the paper's).",
 )
 @click.option(
     "--pairs",

@@ -2,8 +2,9 @@
 
 Some settings of the stored configuration act only at inference (the point count and the input
 crop, the pose head's robust rounds and consensus, the pointer sharpening: ``INFERENCE_FIELDS``).
-Choosing them on figures is part of shipping a file, so this writes a copy with new values and records the change in its metadata
-(``inference_settings``: what was set and the note given, appended to earlier entries):
+Choosing them on figures is part of shipping a file, so this writes a copy with new values and
+records the change in its metadata (``inference_settings``: what was set and the note given,
+appended to earlier entries):
 
     .venv/bin/python scripts/set_inference_settings.py weights/vcr-default.safetensors \\
         --set input_max_range=80 --note "chosen on kitti-sample frames 0-39 and synthetic seeds 201-204" \\

@@ -211,6 +211,27 @@ def test_compare_both_protocols_prints_the_pairs_table_without_kiss_icp(syntheti
     assert report["consecutive"]["icp10"]["errors"]["success_rate"] == 1.0
 
 
+def test_the_pairs_protocol_feeds_vcr_the_point_count_it_runs_on(synthetic_root, tmp_path):
+    """With --vcr-points the pair clouds have that many points (fewer would reach the network padded
+    with repeated points); without it, the weights' own N."""
+    import torch
+
+    from vcr_odom.model.config import VcrConfig
+    from vcr_odom.model.network import VCRNet
+    from vcr_odom.model.weights import save_weights
+
+    torch.manual_seed(0)
+    small = VcrConfig(
+        num_points=128, k=8, point_dim=16, graph_dim=16, spatial_dim=16, feature_dim=32, ff_dim=32
+    )
+    weights = save_weights(tmp_path / "small.safetensors", VCRNet(small), small)
+    common = ["compare", "--data-root", str(synthetic_root), "--protocol", "pairs", "--pairs", "same-scan"]
+    common += ["-b", "vcr", "--weights", str(weights), "--device", "cpu", "--frames", ":2"]
+    assert "2 pairs of 128 points" in invoke(*common, "--results-dir", str(tmp_path / "own"))
+    chosen = invoke(*common, "--vcr-points", "96", "--results-dir", str(tmp_path / "chosen"))
+    assert "2 pairs of 96 points" in chosen
+
+
 def test_run_saves_a_map_of_the_registered_scans(synthetic_root, tmp_path):
     import open3d as o3d
 

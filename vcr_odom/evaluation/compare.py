@@ -268,7 +268,7 @@ def compare_pairs(
         comparison.notes.append(f"no consecutive-pairs table: {sequence.name} has no ground-truth poses")
     if not kinds or not specs:
         return
-    points = settings.pair_points or default_pair_points(specs, settings.weights)
+    points = settings.pair_points or settings.vcr_points or default_pair_points(specs, settings.weights)
     comparison.pair_points = points
     options = {spec.partition("+")[0]: settings.method_options(spec) for spec in specs}
     indices = comparison.frame_indices
@@ -306,7 +306,7 @@ def pair_input_range(specs: list[str], weights: Path | None) -> float:
 
 
 def default_pair_points(specs: list[str], weights: Path | None) -> int:
-    """The VCR weights' N when a VCR row is compared (the network is trained on N-point clouds), else
-    the paper's 1024."""
+    """The VCR weights' N when a VCR row is compared (the N-point clouds the file runs on; fewer would
+    reach it padded with repeated points), else the paper's 1024."""
     config = _vcr_weights_config(specs, weights)
     return config.num_points if config is not None else 1024
