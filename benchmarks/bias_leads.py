@@ -49,14 +49,10 @@ SVD_VARIANTS = (
 
 def vcr_variant(path: Path, label: str, **overrides: Any) -> Any:
     """A VCR registrar (one pass) whose inference-time settings are overridden (not its weights)."""
-    from vcr_odom.preprocess import network_preprocess_config
     from vcr_odom.registration import make_method
 
     method = make_method("vcr", weights=path, device="cpu", passes=1)
-    config = method.config.with_changes(**overrides)
-    method.config = config
-    method.model.config = config
-    method.preprocess_config = network_preprocess_config(config)
+    method.use_inference_settings(**overrides)
     method.name = f"{path.stem} ({label})"
     return method
 

@@ -75,6 +75,10 @@ def test_the_point_count_can_be_chosen_at_inference_and_must_exceed_k(
     assert np.isfinite(result.transform).all()
     with pytest.raises(ConfigError, match=r"--vcr-points.*k = 8.*got 8"):
         VcrRegistrar(weights, "cpu", num_points=8)
+    with pytest.raises(ConfigError, match=r"not inference settings: feature_dim"):
+        fewer.use_inference_settings(feature_dim=64)
+    fewer.use_inference_settings(input_max_range=30.0)
+    assert fewer.preprocess_config.max_range == 30.0 and fewer.model.config.input_max_range == 30.0
 
 
 def test_cpu_default_batch_is_one_and_bad_batch_is_refused(weights: Path) -> None:

@@ -19,7 +19,7 @@ from vcr_odom.data.base import Points
 from vcr_odom.device import resolve_device
 from vcr_odom.errors import ConfigError
 from vcr_odom.geometry import Transform, project_to_se3
-from vcr_odom.model.config import VcrConfig
+from vcr_odom.model.config import INFERENCE_FIELDS, VcrConfig
 from vcr_odom.model.weights import default_weights_path, load_weights
 from vcr_odom.preprocess import network_preprocess_config, preprocess
 from vcr_odom.registration.base import DEGENERATE, TOO_FEW_POINTS, RegistrationResult
@@ -80,22 +80,32 @@ class VcrRegistrar:
         if passes is not None and int(passes) < 1:
             raise ConfigError(f"passes must be >= 1; got {passes!r}")
         self.model, self.config, self.metadata = load_weights(path, device=str(self.device))
+        self.passes = default_passes(self.config) if passes is None else int(passes)
+        self.model.eval()
+        self.weights_path = path
+        self.seed = seed
+        # Pre-processing as in training: ground removed, exactly N points by farthest point sampling
+        # within the weights' input range.
+        self.preprocess_config = network_preprocess_config(self.config, seed)
         if num_points is not None and num_points != self.config.num_points:
-            # The point count is an inference setting (no tensor depends on it): trade the
-            # network's time against how many motions it finds (weights/MODEL_CARD.md).
             if int(num_points) <= self.config.k:
                 raise ConfigError(
                     f"num_points (--vcr-points) must exceed the network's k = {self.config.k} "
                     f"neighbours of {path}; got {num_points}"
                 )
-            self.config = self.config.with_changes(num_points=int(num_points))
-            self.model.config = self.config
-        self.passes = default_passes(self.config) if passes is None else int(passes)
-        self.model.eval()
-        self.weights_path = path
-        # Pre-processing as in training: ground removed, exactly N points by farthest point sampling
-        # within the weights' input range.
-        self.preprocess_config = network_preprocess_config(self.config, seed)
+            self.use_inference_settings(num_points=int(num_points))
+
+    def use_inference_settings(self, **changes: Any) -> None:
+        """Run the same tensors with other :data:`INFERENCE_FIELDS` (point count, crop, pose head): a
+        speed/robustness trade (``--vcr-points``) or a benchmark's variant (weights/MODEL_CARD.md)."""
+        unknown = sorted(set(changes) - set(INFERENCE_FIELDS))
+        if unknown:
+            raise ConfigError(
+                f"not inference settings: {', '.join(unknown)}; valid: {', '.join(INFERENCE_FIELDS)}"
+            )
+        self.config = self.config.with_changes(**changes)
+        self.model.config = self.config
+        self.preprocess_config = network_preprocess_config(self.config, self.seed)
 
     def network_input(self, points: Points) -> NDArray[np.float32]:
         """Exactly N points. A cloud of exactly N points is taken as already pre-processed (the pairs
