@@ -207,7 +207,7 @@ def vcr_options(function: F) -> F:
         type=click.IntRange(min=4),
         default=None,
         help="Points VCR-Net is fed per scan. Default: the weights' own (1024 for the shipped file, "
-        "trained on 512): 512 takes about 40 % of the network's time and misses more motions ~10 m long.",
+        "trained on 512): 512 takes about a third of the network's time and misses more motions ~10 m long.",
     )(function)
     function = click.option(
         "--device",
