@@ -379,3 +379,35 @@ def test_consensus_start_survives_most_correspondences_being_wrong() -> None:
     assert (plain_t[0] - translation).norm() > 0.1  # shrunk towards the still matches
     assert (t[0] - translation).norm() < 0.02
     assert (r[0] - rotation).abs().max() < 1e-3
+
+
+def test_gated_re_pointing_picks_the_counterpart_near_the_estimate_over_a_better_match_far_away() -> None:
+    """A street that repeats every 6 m: each key point's best feature match is the copy 6 m on, its
+    true counterpart second best. From an estimate 1.2 m off, the gate (2 m) keeps only the counterpart,
+    and the re-solve recovers the motion; a key point with no target point in reach is masked out."""
+    from vcr_odom.model.correspondence import gated_virtual_points, robust_procrustes
+
+    generator = torch.Generator().manual_seed(3)
+    source = (torch.rand(1, 60, 3, generator=generator) - 0.5) * torch.tensor([80.0, 80.0, 6.0])
+    source[0, -1] = torch.tensor([500.0, 500.0, 0.0])  # nothing of the target near it
+    yaw = torch.tensor(0.1)
+    rotation = torch.tensor(
+        [[torch.cos(yaw), -torch.sin(yaw), 0.0], [torch.sin(yaw), torch.cos(yaw), 0.0], [0.0, 0.0, 1.0]]
+    )
+    translation = torch.tensor([7.0, 0.5, 0.1])
+    counterparts = source[:, :-1] @ rotation.T + translation
+    copies = counterparts + torch.tensor([6.0, 0.0, 0.0])
+    target = torch.cat([counterparts, copies], dim=1)  # (1, 118, 3)
+    rows = torch.full((1, 60, 118), -100.0)
+    index = torch.arange(59)
+    rows[0, index, index] = -1.0  # the counterpart: second best
+    rows[0, index, index + 59] = 0.0  # the copy 6 m on: best
+    start = translation + torch.tensor([1.2, 0.0, 0.0])
+
+    virtual, reached = gated_virtual_points(source, rows, target, rotation[None], start[None], radius=2.0)
+
+    assert reached[0, :-1].all() and not reached[0, -1]
+    torch.testing.assert_close(virtual[0, :-1], counterparts[0], atol=1e-5, rtol=0)
+    r, t = robust_procrustes(source, virtual, reached.float(), iterations=3)
+    assert (t[0] - translation).norm() < 1e-3
+    assert (r[0] - rotation).abs().max() < 1e-4

@@ -34,6 +34,7 @@ LEGACY_VALUES: dict[str, object] = {
     "consensus_hypotheses": 0,
     "inference_sharpening": 1.0,
     "distance_bias": False,
+    "gated_rounds": 0,
 }
 """What a weight file that lacks a field was trained with."""
 
@@ -45,6 +46,8 @@ INFERENCE_FIELDS: tuple[str, ...] = (
     "consensus_hypotheses",
     "consensus_threshold",
     "inference_sharpening",
+    "gated_rounds",
+    "gate_radius",
 )
 """Fields no tensor was fitted to: a file can run with other values than it was trained with.
 
@@ -139,6 +142,14 @@ class VcrConfig(Settings):
         "cloud, i.e. towards zero motion. Training keeps the learned temperature (its gradient needs "
         "the blend).",
     )
+    gated_rounds: int = _count(
+        2,
+        0,
+        "After the pose head, this many rounds of gated re-pointing (inference only): each key point's "
+        "virtual point is re-chosen among the target points within gate_radius of where the estimate "
+        "so far puts it, by the same feature affinity, and the motion re-solved. 0 = off.",
+    )
+    gate_radius: float = _positive(2.0, "Radius of the gated re-pointing (metres).")
     gamma: float = _positive(1.0, "The paper's γ: weight of the false-match term of Loss_cor.")
     match_radius: float | None = Field(
         None,

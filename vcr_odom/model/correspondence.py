@@ -85,6 +85,33 @@ def virtual_correspondences(
     )
 
 
+def gated_virtual_points(
+    key_points: Tensor,
+    key_rows: Tensor,
+    target_xyz: Tensor,
+    rotation: Tensor,
+    translation: Tensor,
+    radius: float,
+) -> tuple[Tensor, Tensor]:
+    """Virtual points ``(B, K, 3)`` re-chosen as the target point of highest affinity ``key_rows``
+    ``(B, K, M)`` among those within ``radius`` metres of where ``rotation``, ``translation`` put each
+    key point, and a ``(B, K)`` mask of the key points that had any target point within reach
+    (elsewhere the virtual point is the moved key point itself, to be given no weight).
+
+    Why: where a street repeats along its length (facades, parked cars), the best feature match can
+    lie metres from the true counterpart; the pose head's consensus gets the motion roughly right,
+    and the same affinity restricted to that neighbourhood then picks the counterpart. One candidate,
+    not the pose head's soft pointer over J: at inference that pointer is sharpened to nearly its
+    best candidate anyway (``inference_sharpening``), and a max costs a fraction of a top-J."""
+    with torch.no_grad():
+        moved = key_points @ rotation.transpose(1, 2) + translation.unsqueeze(1)
+        near = torch.cdist(moved.float(), target_xyz.float()) <= radius
+        best, index = key_rows.masked_fill(~near, float("-inf")).max(dim=-1)
+        reached = torch.isfinite(best)
+        virtual = torch.where(reached.unsqueeze(-1), gather_points(target_xyz, index), moved)
+    return virtual, reached
+
+
 def weighted_procrustes(
     source: Tensor, target: Tensor, weights: Tensor | None = None
 ) -> tuple[Tensor, Tensor]:

@@ -21,6 +21,7 @@ from vcr_odom.model.attention import CrossAttention, SelfAttention
 from vcr_odom.model.config import VcrConfig
 from vcr_odom.model.correspondence import (
     feature_affinity,
+    gated_virtual_points,
     robust_procrustes,
     to_homogeneous,
     virtual_correspondences,
@@ -114,6 +115,10 @@ class VCRNet(nn.Module):
             hypotheses=self.config.consensus_hypotheses,
             threshold=self.config.consensus_threshold,
         )
+        if not self.training and self.config.gated_rounds:
+            rotation, translation = self._gated_rounds(
+                vcp.key_points, vcp.key_indices, affinity, target_points, rotation, translation, key_weights
+            )
         return VcrOutput(
             rotation=rotation,
             translation=translation,
@@ -130,6 +135,30 @@ class VCRNet(nn.Module):
             target_features=target_features,
             temperature=temperature,
         )
+
+    def _gated_rounds(
+        self,
+        key_points: Tensor,
+        key_indices: Tensor,
+        affinity: Tensor,
+        target_points: Tensor,
+        rotation: Tensor,
+        translation: Tensor,
+        key_weights: Tensor,
+    ) -> tuple[Tensor, Tensor]:
+        """``gated_rounds`` re-pointings (:func:`gated_virtual_points`), each followed by the robust
+        re-weighting from the motion so far."""
+        c = self.config
+        key_rows = torch.gather(affinity, 1, key_indices.unsqueeze(-1).expand(-1, -1, affinity.shape[-1]))
+        for _ in range(c.gated_rounds):
+            virtual, reached = gated_virtual_points(
+                key_points, key_rows, target_points, rotation, translation, c.gate_radius
+            )
+            weights = reached.to(key_points.dtype) * (key_weights if c.weighted_svd else 1.0)
+            rotation, translation = robust_procrustes(
+                key_points, virtual, weights, iterations=c.robust_iterations, scale=c.robust_scale
+            )
+        return rotation, translation
 
     def forward(self, source: Tensor, target: Tensor) -> VcrOutput:
         """T_target_source for each pair of the batch: ``source``, ``target`` ``(B, N, 3)`` metres."""
