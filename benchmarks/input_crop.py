@@ -9,18 +9,24 @@ Choose on one set of frames and seeds, confirm on another:
         --frames 0:40 --first-seed 201 [--crop 40 --crop 50 --crop 60 --crop 80] [--gap 1 --gap 5 --gap 10] \\
         [--points 512 --points 1024]
     .venv/bin/python benchmarks/input_crop.py --data-root ../shared/data/kitti-sample --seq 00 \\
+        --frames 0:40 --first-seed 201 --variant "shipped=" --variant "gated 2 m=gated_rounds:2,gate_radius:2"
+    .venv/bin/python benchmarks/input_crop.py --data-root ../shared/data/kitti-sample --seq 00 \\
         --frames 40:60 --first-seed 301
 
 Synthetic drives: seeds ``first-seed`` .. ``first-seed + 3`` with HDL-64E, HDL-32E, VLP-16 and OS1-128
 (40 frames, 12 m/s). Prints one markdown table: success (< 2°, < 0.5 m) and est/true length per
 set, gap and variant (every crop with every point count; without ``--points``, the file's own), and the
-mean success over the sets.
+mean success over the sets. ``--variant LABEL=NAME:VALUE,...`` (repeat) instead names each column's
+inference settings (:data:`~vcr_odom.model.config.INFERENCE_FIELDS`; ``LABEL=`` alone: the file as it
+is), for settings other than the crop and the point count.
 """
 
 from __future__ import annotations
 
+import argparse
 import warnings
 from pathlib import Path
+from typing import Any
 
 from sequence_args import sequence_parser
 
@@ -33,6 +39,11 @@ def main() -> None:
     parser.add_argument("--crop", type=float, action="append", help="metres (repeat); default 40 50 60 80")
     parser.add_argument("--gap", type=int, action="append", help="frames apart (repeat); default 1 5 10")
     parser.add_argument("--points", type=int, action="append", help="points fed (repeat); default the file's")
+    parser.add_argument(
+        "--variant",
+        action="append",
+        help="LABEL=NAME:VALUE,... inference settings (repeat; replaces the grid)",
+    )
     parser.add_argument("--first-seed", type=int, default=201)
     parser.add_argument("--synth-frames", type=int, default=40)
     args = parser.parse_args()
@@ -52,11 +63,17 @@ def main() -> None:
     crops = args.crop or [40.0, 50.0, 60.0, 80.0]
     gaps = args.gap or [1, 5, 10]
     points = args.points or [None]
-    variants = [
-        vcr_variant(weights, _label(crop, count), input_max_range=crop, **_points(count))
-        for crop in crops
-        for count in points
-    ]
+    if args.variant:
+        settings = [_parse_variant(spec, parser) for spec in args.variant]
+        labels = [label for label, _ in settings]
+        variants = [vcr_variant(weights, label, **changes) for label, changes in settings]
+    else:
+        labels = [_label(crop, count) for crop in crops for count in points]
+        variants = [
+            vcr_variant(weights, _label(crop, count), input_max_range=crop, **_points(count))
+            for crop in crops
+            for count in points
+        ]
     kitti = open_sequence(args.seq, data_root=args.data_root)
     sets = [(f"{kitti.name} {args.frames or 'all'}", kitti, select_frames(len(kitti), args.frames))]
     for offset, sensor in enumerate(SENSORS):
@@ -65,7 +82,6 @@ def main() -> None:
         sets.append((f"{sensor} seed {seed}", drive, list(range(len(drive)))))
 
     success: dict[tuple[int, str], list[float]] = {}
-    labels = [_label(crop, count) for crop in crops for count in points]
     print("| set | gap | " + " | ".join(f"{label}: success, ratio" for label in labels) + " |")
     print("|---|---:|" + "---|" * len(labels))
     for name, sequence, frames in sets:
@@ -80,6 +96,26 @@ def main() -> None:
     for gap in gaps:
         means = [100 * sum(success[gap, label]) / len(success[gap, label]) for label in labels]
         print(f"| mean success | {gap} | " + " | ".join(f"{mean:.1f} %" for mean in means) + " |")
+
+
+def _parse_variant(spec: str, parser: argparse.ArgumentParser) -> tuple[str, dict[str, Any]]:
+    """``LABEL=NAME:VALUE,...`` -> (label, settings), each value of its field's type."""
+    from vcr_odom.model.config import INFERENCE_FIELDS, VcrConfig
+
+    label, sep, rest = spec.partition("=")
+    if not sep or not label:
+        parser.error(f"--variant: expected LABEL=NAME:VALUE,...; got {spec!r}")
+    changes: dict[str, Any] = {}
+    for item in filter(None, rest.split(",")):
+        name, _, value = item.partition(":")
+        if name not in INFERENCE_FIELDS:
+            parser.error(f"--variant {spec!r}: {name!r} is not one of {', '.join(INFERENCE_FIELDS)}")
+        kind = type(getattr(VcrConfig(), name))
+        try:
+            changes[name] = kind(float(value)) if kind is not str else value
+        except ValueError:
+            parser.error(f"--variant {spec!r}: {name} needs a number; got {value!r}")
+    return label, changes
 
 
 def _points(count: int | None) -> dict[str, int]:

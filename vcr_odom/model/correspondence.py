@@ -14,6 +14,10 @@ Deviation: the SVD head accepts optional per-point weights (weighted Kabsch); th
 unweighted, which is the default. Deviation (``robust_iterations`` > 0): the paper's solve is followed
 by a few iteratively reweighted ones (:func:`robust_procrustes`), which give key points without a
 counterpart in the other scan little say.
+Deviation (``gated_rounds`` > 0, inference only): after that, each key point's virtual point is
+re-chosen among the target points near where the estimate puts it (:func:`gated_virtual_points`) and
+the motion re-solved; on streets that repeat along their length the best feature match can lie metres
+from the counterpart (weights/MODEL_CARD.md, "Gated re-pointing", gives the figures).
 """
 
 from __future__ import annotations
