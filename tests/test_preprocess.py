@@ -205,3 +205,20 @@ def test_ground_removal_repeats_exactly_on_ray_cast_scans() -> None:
         first = crop_and_remove_ground(frame, config)
         for _ in range(4):
             np.testing.assert_array_equal(crop_and_remove_ground(frame, config), first)
+
+
+def test_downsample_without_padding_keeps_what_there_is() -> None:
+    """``pad=False`` (the network at inference) returns every point of a frame with fewer than n, none
+    repeated and no warning; the default pads by resampling, as training caches need exactly n."""
+    import warnings
+
+    from vcr_odom.preprocess import downsample
+
+    points = np.random.default_rng(0).uniform(-10, 10, size=(50, 3)).astype(np.float32)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        kept = downsample(points, 64, pad=False)
+    np.testing.assert_array_equal(kept, points)
+    with pytest.warns(DataWarning, match="padding"):
+        padded = downsample(points, 64)
+    assert len(padded) == 64 and len(np.unique(padded, axis=0)) == 50

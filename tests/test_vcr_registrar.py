@@ -61,6 +61,29 @@ def test_an_n_point_cloud_is_used_as_it_is(weights: Path) -> None:
     np.testing.assert_array_equal(prepared.points[0].numpy(), cloud[:, :3])
 
 
+def test_a_sparse_frame_runs_on_the_points_it_has_not_on_repeated_ones(weights: Path) -> None:
+    """A frame with fewer than N points (a near-empty scan) is fed as it is: no point repeated, which
+    would give the kNN graphs zero-length edges; batches that mix it with full frames give what each
+    pair gives alone, and the shipped model still measures the motion from it."""
+    import warnings
+
+    registrar = VcrRegistrar(weights, "cpu")
+    rng = np.random.default_rng(1)
+    sparse = rng.uniform(-20, 20, size=(90, 3)).astype(np.float32)  # N = 128, k = 8
+    full = rng.uniform(-20, 20, size=(400, 3)).astype(np.float32)
+    with warnings.catch_warnings():
+        warnings.filterwarnings("error", message=".*padding")  # no point made up
+        warnings.filterwarnings("ignore", message=".*ground")  # random clouds have none
+        frames = registrar.prepare_batch([full, sparse, full + 1.0])
+    assert [f.points.shape[1] for f in frames] == [128, 90, 128]
+    assert frames[1].distinct_points == 90 and not registrar.too_few_points(frames[1])
+    pairs = [(frames[1], frames[0]), (frames[2], frames[1]), (frames[2], frames[0])]
+    batched = registrar.register_batch(pairs)
+    alone = [registrar.register(source, target) for source, target in pairs]
+    for together, single in zip(batched, alone, strict=True):
+        np.testing.assert_allclose(together.transform, single.transform, atol=1e-5)
+
+
 def test_the_point_count_can_be_chosen_at_inference_and_must_exceed_k(
     weights: Path, synth: SynthSequence
 ) -> None:

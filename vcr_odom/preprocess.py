@@ -222,6 +222,7 @@ def downsample(
     seed: int = 0,
     voxel_size: float = 0.3,
     fps_candidates: int | None = None,
+    pad: bool = True,
 ) -> NDArray[np.float32]:
     """Exactly ``n`` points (all input columns kept), deterministic for ``seed``.
 
@@ -230,7 +231,9 @@ def downsample(
     With ``fps_candidates`` it samples from a seeded random subset of that many points (see
     :class:`PreprocessConfig`).
     Fewer than ``n`` points available: all of them plus seeded resampling with replacement, and a
-    ``DataWarning``. An empty frame gives ``n`` zero points and a ``DataWarning``.
+    ``DataWarning``; with ``pad=False``, all of them and no more (for a consumer that takes any count:
+    the network at inference, whose kNN graphs repeated points would distort). An empty frame gives
+    ``n`` zero points and a ``DataWarning``.
     """
     if method not in DOWNSAMPLE_METHODS:
         raise ConfigError(f"method must be one of {', '.join(DOWNSAMPLE_METHODS)}; got {method!r}")
@@ -243,6 +246,8 @@ def downsample(
         return np.zeros((n, points.shape[1]), dtype=np.float32)
     if method == "voxel":
         points = _from_cloud(_to_cloud(points).voxel_down_sample(voxel_size), points.shape[1])
+    if len(points) < n and not pad:
+        return points.copy()
     if len(points) < n:
         warnings.warn(
             f"only {len(points)} points for n={n} ({method}): padding by resampling",
@@ -299,12 +304,15 @@ def crop_and_remove_ground(points: NDArray, config: PreprocessConfig | None = No
     return points
 
 
-def preprocess(points: NDArray, config: PreprocessConfig | None = None) -> NDArray[np.float32]:
-    """Crop, remove the ground, down-sample: float32 ``(n_points, 3)`` (``(n, 4)`` with reflectance)."""
+def preprocess(
+    points: NDArray, config: PreprocessConfig | None = None, *, pad: bool = True
+) -> NDArray[np.float32]:
+    """Crop, remove the ground, down-sample: float32 ``(n_points, 3)`` (``(n, 4)`` with reflectance);
+    ``pad=False``: fewer rows where the frame has fewer points (see :func:`downsample`)."""
     config = config or PreprocessConfig()
     points = crop_and_remove_ground(points, config)
     sampled = downsample(
-        points, config.n_points, config.method, config.seed, config.voxel_size, config.fps_candidates
+        points, config.n_points, config.method, config.seed, config.voxel_size, config.fps_candidates, pad
     )
     return _select_columns(sampled, config)
 

@@ -6,7 +6,7 @@ so in odometry each frame is encoded once and its features serve both pairs it b
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -111,15 +111,18 @@ class VcrRegistrar:
         self.preprocess_config = network_preprocess_config(self.config, self.seed)
 
     def network_input(self, points: Points) -> NDArray[np.float32]:
-        """Exactly N points. A cloud of exactly N points is taken as already pre-processed (the pairs
-        protocol's clouds are): ground removal and sampling again would only drop or shuffle points."""
+        """N points, or all of them where a frame has fewer: the network runs on any count above its
+        k (every layer is shared over points), and repeating points to make up N would give its kNN
+        graphs zero-length edges it never saw in training. A cloud of exactly N points is taken as
+        already pre-processed (the pairs protocol's clouds are): ground removal and sampling again
+        would only drop or shuffle points."""
         if len(points) == self.config.num_points:
             xyz = np.asarray(points, dtype=np.float32)[:, :3]
         else:
-            xyz = preprocess(points, self.preprocess_config)[:, :3]
-        if 0 < len(xyz) != self.config.num_points:
-            # Farthest point sampling stops short on a cloud of few distinct points (5000 copies of
-            # one point give one): repeat them up to N, so the frame batches and is then flagged.
+            xyz = preprocess(points, self.preprocess_config, pad=False)[:, :3]
+        if 0 < len(xyz) <= self.config.k:
+            # Too few for a kNN graph (a near-empty scan, 5000 copies of one point): repeated up to N
+            # so that the frame runs, and then every pair with it is flagged (too_few_points).
             xyz = xyz[np.arange(self.config.num_points) % len(xyz)]
         return np.ascontiguousarray(xyz, dtype=np.float32)
 
@@ -136,16 +139,18 @@ class VcrRegistrar:
         """Pre-process each frame (CPU), then encode and self-attend them all in one forward pass:
         done once per frame, not once per pair (a frame is the source of one pair, the target of the next)."""
         inputs = [self.network_input(points) for points in frames]
-        distinct = [len(np.unique(xyz, axis=0)) for xyz in inputs]
-        tensor = torch.as_tensor(np.stack(inputs), dtype=torch.float32, device=self.device)
-        features = self.model.encode(tensor)
-        psi, weights = self.model.attend(tensor, features)
-        return [
-            VcrFrame(
-                tensor[i : i + 1], features[i : i + 1], distinct[i], (psi[i : i + 1], weights[i : i + 1])
+        prepared: list[VcrFrame | None] = [None] * len(inputs)
+        for group in _same_size(inputs, key=len):  # one batch per point count (a sparse frame has fewer)
+            tensor = torch.as_tensor(
+                np.stack([inputs[i] for i in group]), dtype=torch.float32, device=self.device
             )
-            for i in range(len(frames))
-        ]
+            features = self.model.encode(tensor)
+            psi, weights = self.model.attend(tensor, features)
+            for row, i in enumerate(group):
+                distinct = len(np.unique(inputs[i], axis=0))
+                attended = (psi[row : row + 1], weights[row : row + 1])
+                prepared[i] = VcrFrame(tensor[row : row + 1], features[row : row + 1], distinct, attended)
+        return prepared  # type: ignore[return-value]
 
     @torch.inference_mode()
     def register(
@@ -158,6 +163,13 @@ class VcrRegistrar:
         """``T_target_source`` of every ``(source, target)`` pair, in one batched pass per ``passes``:
         each pass after the first re-encodes the source moved by the estimate so far and registers
         what is left (see :data:`DEFAULT_PASSES`)."""
+        groups = _same_size(pairs, key=lambda pair: (pair[0].points.shape[1], pair[1].points.shape[1]))
+        if len(groups) > 1:  # a sparse frame among them: each point count is batched on its own
+            results: list[RegistrationResult | None] = [None] * len(pairs)
+            for group in groups:
+                for i, result in zip(group, self.register_batch([pairs[i] for i in group]), strict=True):
+                    results[i] = result
+            return results  # type: ignore[return-value]
         sources, targets = zip(*pairs, strict=True)
         source_points = torch.cat([f.points for f in sources])
         source_features = torch.cat([f.features for f in sources])
@@ -204,6 +216,14 @@ def default_passes(config: VcrConfig) -> int:
     features (to float rounding), hence the same correspondences, and a second pass returns the
     identity at twice the cost. Two for the legacy ``xyz`` encoder (:data:`DEFAULT_PASSES`)."""
     return 1 if config.encoder == "invariant" else DEFAULT_PASSES
+
+
+def _same_size(items: Sequence[Any], key: Callable[[Any], Any]) -> list[list[int]]:
+    """Indices of ``items`` grouped by ``key`` (first appearance order): what can be stacked."""
+    groups: dict[Any, list[int]] = {}
+    for index, item in enumerate(items):
+        groups.setdefault(key(item), []).append(index)
+    return list(groups.values())
 
 
 def _attended(frames: Sequence[VcrFrame]) -> tuple[torch.Tensor, torch.Tensor] | None:
