@@ -15,7 +15,6 @@ import numpy as np
 import torch
 from numpy.typing import NDArray
 
-from vcr_odom.allocator import retain_freed_memory
 from vcr_odom.data.base import Points
 from vcr_odom.device import resolve_device
 from vcr_odom.errors import ConfigError
@@ -73,8 +72,6 @@ class VcrRegistrar:
     ) -> None:
         path = Path(weights) if weights is not None else default_weights_path("default")
         self.device = resolve_device(device)
-        if self.device.type == "cpu":
-            retain_freed_memory()  # large temporaries reused, not page-faulted in on every call
         # Batches pay off where the network is launch-bound (a GPU); on a CPU they only add latency.
         default_batch = GPU_BATCH_SIZE if self.device.type == "cuda" else 1
         self.batch_size = default_batch if batch_size is None else int(batch_size)
