@@ -41,7 +41,8 @@ this small means they collapsed onto a line, where the rotation about it is unde
 
 @dataclass
 class VcrFrame:
-    """A frame as the network sees it: ``points`` (1, N, 3) on the device, their encoder features and
+    """A frame as the network sees it: ``points`` (1, n, 3) on the device (n = N, or fewer where the
+    frame has fewer: :meth:`VcrRegistrar.network_input`), their encoder features and
     self-attention (``attended``: features and point weights), all of which depend on the frame alone.
 
     ``distinct_points`` below the network's k + 1 (a frame of one point repeated, a near-empty scan)
@@ -133,8 +134,9 @@ class VcrRegistrar:
 
     @torch.inference_mode()
     def prepare_batch(self, frames: Sequence[Points]) -> list[VcrFrame]:
-        """Pre-process each frame (CPU), then encode and self-attend them all in one forward pass:
-        done once per frame, not once per pair (a frame is the source of one pair, the target of the next)."""
+        """Pre-process each frame (CPU), then encode and self-attend them in one forward pass per point
+        count (all but a sparse frame have N): done once per frame, not once per pair (a frame is the
+        source of one pair, the target of the next)."""
         inputs = [self.network_input(points) for points in frames]
         prepared: list[VcrFrame | None] = [None] * len(inputs)
         for group in _same_size(inputs, key=len):  # one batch per point count (a sparse frame has fewer)
