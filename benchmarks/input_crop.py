@@ -99,8 +99,9 @@ def main() -> None:
 
 
 def _parse_variant(spec: str, parser: argparse.ArgumentParser) -> tuple[str, dict[str, Any]]:
-    """``LABEL=NAME:VALUE,...`` -> (label, settings), each value of its field's type."""
-    from vcr_odom.model.config import INFERENCE_FIELDS, VcrConfig
+    """``LABEL=NAME:VALUE,...`` -> (label, settings), parsed as ``set_inference_settings.py --set``."""
+    from vcr_odom.errors import ConfigError
+    from vcr_odom.model.config import parse_inference_setting
 
     label, sep, rest = spec.partition("=")
     if not sep or not label:
@@ -108,13 +109,10 @@ def _parse_variant(spec: str, parser: argparse.ArgumentParser) -> tuple[str, dic
     changes: dict[str, Any] = {}
     for item in filter(None, rest.split(",")):
         name, _, value = item.partition(":")
-        if name not in INFERENCE_FIELDS:
-            parser.error(f"--variant {spec!r}: {name!r} is not one of {', '.join(INFERENCE_FIELDS)}")
-        kind = type(getattr(VcrConfig(), name))
         try:
-            changes[name] = kind(float(value)) if kind is not str else value
-        except ValueError:
-            parser.error(f"--variant {spec!r}: {name} needs a number; got {value!r}")
+            changes[name] = parse_inference_setting(name, value)
+        except ConfigError as error:
+            parser.error(f"--variant {spec!r}: {error}")
     return label, changes
 
 

@@ -19,32 +19,21 @@ import argparse
 import sys
 from pathlib import Path
 
-from vcr_odom.model.config import INFERENCE_FIELDS, VcrConfig
+from vcr_odom.errors import ConfigError
+from vcr_odom.model.config import parse_inference_setting
 
 
 def parse_assignments(assignments: list[str]) -> dict[str, object]:
     changes: dict[str, object] = {}
     for assignment in assignments:
         name, equals, value = assignment.partition("=")
-        name = name.strip()
         if not equals or not value.strip():
             raise SystemExit(f"--set expects NAME=VALUE; got {assignment!r}")
-        if name not in INFERENCE_FIELDS:
-            raise SystemExit(
-                f"--set {name}: not an inference-only setting; valid: {', '.join(INFERENCE_FIELDS)}"
-            )
-        changes[name] = _typed(name, value.strip())
-    return changes
-
-
-def _typed(name: str, value: str) -> object:
-    """Integer fields are strict (a weight file stores plain ints), so ``num_points=1024`` is parsed."""
-    if VcrConfig.model_fields[name].annotation is int:
         try:
-            return int(value)
-        except ValueError:
-            raise SystemExit(f"--set {name}: expected a whole number; got {value!r}") from None
-    return value
+            changes[name.strip()] = parse_inference_setting(name.strip(), value.strip())
+        except ConfigError as error:
+            raise SystemExit(f"--set {assignment}: {error}") from None
+    return changes
 
 
 def main(argv: list[str] | None = None) -> None:

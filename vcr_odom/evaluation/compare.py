@@ -306,7 +306,7 @@ def pair_input_range(specs: list[str], weights: Path | None) -> float:
 
 
 def default_pair_points(specs: list[str], weights: Path | None) -> int:
-    """The VCR weights' N when a VCR row is compared (the N-point clouds the file runs on; fewer would
-    reach it padded with repeated points), else the paper's 1024."""
+    """The VCR weights' N when a VCR row is compared (the N-point clouds the file runs on; it runs on
+    fewer too, but was chosen and measured at N), else the paper's 1024."""
     config = _vcr_weights_config(specs, weights)
     return config.num_points if config is not None else 1024

@@ -57,6 +57,20 @@ clouds and runs on 1024 (``weights/MODEL_CARD.md``). The crop and the point coun
 *training* sees, so caches are checked against the model being trained, not against an init file."""
 
 
+def parse_inference_setting(name: str, value: str) -> object:
+    """A command-line ``NAME``, ``VALUE`` pair as :meth:`VcrConfig.with_changes` takes it: the name must be
+    one of :data:`INFERENCE_FIELDS`; integer fields are parsed here (they are strict, as a weight file
+    stores plain ints), other values are left to the field's own validation."""
+    if name not in INFERENCE_FIELDS:
+        raise ConfigError(f"{name!r} is not an inference-only setting; valid: {', '.join(INFERENCE_FIELDS)}")
+    if VcrConfig.model_fields[name].annotation is int:
+        try:
+            return int(value)
+        except ValueError:
+            raise ConfigError(f"{name}: expected a whole number; got {value!r}") from None
+    return value
+
+
 def _count(default: int, minimum: int, description: str) -> Any:
     """An integer field (no bool, no float, no numpy integer: a weight file stores plain ints)."""
     return Field(default, ge=minimum, strict=True, description=description)

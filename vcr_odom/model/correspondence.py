@@ -56,6 +56,7 @@ class VirtualCorrespondences:
     candidate_indices: Tensor  # (B, K, J) long, rows of the target
     pointer_weights: Tensor  # (B, K, J) softmax over the J candidates
     key_scores: Tensor  # (B, K) the ranking score of each key point
+    key_rows: Tensor  # (B, K, M) the key points' affinity rows (reused by the gated re-pointing)
 
 
 def virtual_correspondences(
@@ -86,6 +87,7 @@ def virtual_correspondences(
         candidate_indices=candidate_indices,
         pointer_weights=pointer,
         key_scores=key_scores,
+        key_rows=key_rows,
     )
 
 

@@ -117,7 +117,7 @@ class VCRNet(nn.Module):
         )
         if not self.training and self.config.gated_rounds:
             rotation, translation = self._gated_rounds(
-                vcp.key_points, vcp.key_indices, affinity, target_points, rotation, translation, key_weights
+                vcp.key_points, vcp.key_rows, target_points, rotation, translation, key_weights
             )
         return VcrOutput(
             rotation=rotation,
@@ -139,8 +139,7 @@ class VCRNet(nn.Module):
     def _gated_rounds(
         self,
         key_points: Tensor,
-        key_indices: Tensor,
-        affinity: Tensor,
+        key_rows: Tensor,
         target_points: Tensor,
         rotation: Tensor,
         translation: Tensor,
@@ -149,7 +148,6 @@ class VCRNet(nn.Module):
         """``gated_rounds`` re-pointings (:func:`gated_virtual_points`), each followed by the robust
         re-weighting from the motion so far."""
         c = self.config
-        key_rows = torch.gather(affinity, 1, key_indices.unsqueeze(-1).expand(-1, -1, affinity.shape[-1]))
         for _ in range(c.gated_rounds):
             virtual, reached = gated_virtual_points(
                 key_points, key_rows, target_points, rotation, translation, c.gate_radius
