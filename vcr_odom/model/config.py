@@ -35,6 +35,7 @@ LEGACY_VALUES: dict[str, object] = {
     "inference_sharpening": 1.0,
     "distance_bias": False,
     "gated_rounds": 0,
+    "consensus_seeds": 0,
 }
 """What a weight file that lacks a field was trained with."""
 
@@ -45,6 +46,8 @@ INFERENCE_FIELDS: tuple[str, ...] = (
     "robust_scale",
     "consensus_hypotheses",
     "consensus_threshold",
+    "consensus_seeds",
+    "consensus_group",
     "inference_sharpening",
     "gated_rounds",
     "gate_radius",
@@ -148,7 +151,20 @@ class VcrConfig(Settings):
         "correspondences each, instead of the unweighted SVD, whose start lies outside the "
         "re-weighting's basin when many virtual points are wrong (inference only: no gradient).",
     )
-    consensus_threshold: float = _positive(1.0, "Support radius of a consensus hypothesis (metres).")
+    consensus_threshold: float = _positive(
+        1.0,
+        "Support radius of a consensus hypothesis (metres); also the tolerance on pairwise distances "
+        "of consensus_seeds.",
+    )
+    consensus_seeds: int = _count(
+        32,
+        0,
+        "Where > 0, the consensus also tries this many motions, each fitted to a seed correspondence "
+        "and the consensus_group correspondences that agree most with it on pairwise distances (a rigid "
+        "motion keeps distances; inference only). Random triples rarely hit a right motion where only "
+        "a few per cent of the virtual points are right, as 10 frames apart in an old-town street.",
+    )
+    consensus_group: int = _count(16, 3, "Correspondences per consensus_seeds motion.")
     inference_sharpening: float = _positive(
         64.0,
         "Outside training the soft pointer's temperature is divided by this, so each virtual point is "
@@ -157,7 +173,7 @@ class VcrConfig(Settings):
         "the blend).",
     )
     gated_rounds: int = _count(
-        2,
+        3,
         0,
         "After the pose head, this many rounds of gated re-pointing (inference only): each key point's "
         "virtual point is re-chosen among the target points within gate_radius of where the estimate "

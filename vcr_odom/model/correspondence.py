@@ -18,6 +18,9 @@ Deviation (``gated_rounds`` > 0, inference only): after that, each key point's v
 re-chosen among the target points near where the estimate puts it (:func:`gated_virtual_points`) and
 the motion re-solved; on streets that repeat along their length the best feature match can lie metres
 from the counterpart (weights/MODEL_CARD.md, "Gated re-pointing", gives the figures).
+Deviation (``consensus_seeds`` > 0, inference only): the consensus start also tries motions fitted to
+groups of correspondences that keep each other's pairwise distances (:func:`compatible_hypotheses`),
+where random triples rarely hit a right motion (weights/MODEL_CARD.md, "Compatible seeds").
 """
 
 from __future__ import annotations
@@ -147,27 +150,83 @@ def weighted_procrustes(
     return rotation, translation
 
 
-def consensus_start(
-    source: Tensor, target: Tensor, weights: Tensor | None, hypotheses: int, threshold: float
-) -> tuple[Tensor, Tensor]:
-    """The rigid motion, among ``hypotheses`` fitted to three correspondences each, that brings the
-    most (weighted) correspondences within ``threshold`` metres: a RANSAC start for the re-weighting.
-
-    Why: where many virtual points are wrong (scans metres apart, repeated structure), the least-squares
-    start of the paper's SVD lies outside the basin of the re-weighting, which then keeps it. The
-    triples are drawn from a fixed-seed generator (deterministic, and the same for a moved cloud, so
-    the estimate stays equivariant); no gradient flows through the choice."""
+def triple_hypotheses(source: Tensor, target: Tensor, hypotheses: int) -> tuple[Tensor, Tensor]:
+    """``hypotheses`` rigid motions ``(B, H, 3, 3)``, ``(B, H, 3)``, each fitted to three correspondences
+    drawn from a fixed-seed generator (deterministic, and the same for a moved cloud, so the estimate
+    stays equivariant)."""
     batch, count, _ = source.shape
     generator = torch.Generator().manual_seed(0)
     triples = torch.randint(count, (hypotheses, 3), generator=generator).to(source.device)
+    src = source[:, triples].reshape(batch * hypotheses, 3, 3).float()
+    tgt = target[:, triples].reshape(batch * hypotheses, 3, 3).float()
+    rotation, translation = weighted_procrustes(src, tgt)
+    return rotation.view(batch, hypotheses, 3, 3), translation.view(batch, hypotheses, 3)
+
+
+def compatible_hypotheses(
+    source: Tensor, target: Tensor, seeds: int, group: int, tolerance: float
+) -> tuple[Tensor, Tensor]:
+    """``seeds`` rigid motions ``(B, S, 3, 3)``, ``(B, S, 3)``, each fitted to one seed correspondence and
+    the ``group`` correspondences that agree most with it on pairwise distances.
+
+    Why: a rigid motion keeps distances, so two right correspondences i, j have ``| |x_i - x_j| -
+    |y_i - y_j| |`` below ``tolerance``, whatever the motion; wrong ones agree only by chance. Two
+    correspondences that agree and share many other agreeing ones (second-order compatibility, as in
+    SC²-PCR, Chen et al. 2022) are very likely both right. Where only 4-9 % of virtual points are right
+    (an old-town street 10 frames apart), a random triple is all right once in thousands of draws; a
+    seed with the most second-order support and its best-agreeing group are right far more often.
+    Everything here depends on distances within each cloud, so it is unchanged by moving either cloud.
+    """
+    batch, count, _ = source.shape
+    seeds = min(seeds, count)
+    group = min(group, count)
+    agree = ((torch.cdist(source, source) - torch.cdist(target, target)).abs() < tolerance).float()
+    agree.diagonal(dim1=1, dim2=2).zero_()
+    degree = agree.sum(-1)  # (B, K) first-order support of each correspondence
+    first = degree.topk(min(count, 4 * seeds), dim=-1).indices  # candidates for seeds
+    rows = torch.gather(agree, 1, first.unsqueeze(-1).expand(-1, -1, count))  # (B, 4S, K)
+    second = rows * (rows @ agree)  # common agreeing correspondences, for agreeing pairs only
+    strength = second.sum(-1)
+    pick = strength.topk(seeds, dim=-1).indices  # (B, S)
+    seed_rows = torch.gather(second, 1, pick.unsqueeze(-1).expand(-1, -1, count))
+    seed_index = torch.gather(first, 1, pick)
+    seed_rows.scatter_(2, seed_index.unsqueeze(-1), float("inf"))  # the seed is in its own group
+    members = seed_rows.topk(group, dim=-1).indices  # (B, S, G)
+    flat = members.reshape(batch, seeds * group)
+    src = gather_points(source, flat).reshape(batch * seeds, group, 3)
+    tgt = gather_points(target, flat).reshape(batch * seeds, group, 3)
+    rotation, translation = weighted_procrustes(src, tgt)
+    return rotation.view(batch, seeds, 3, 3), translation.view(batch, seeds, 3)
+
+
+def consensus_start(
+    source: Tensor,
+    target: Tensor,
+    weights: Tensor | None,
+    hypotheses: int,
+    threshold: float,
+    seeds: int = 0,
+    group: int = 16,
+) -> tuple[Tensor, Tensor]:
+    """The rigid motion, among ``hypotheses`` fitted to three random correspondences each and ``seeds``
+    fitted to compatible groups (:func:`compatible_hypotheses`), that brings the most (weighted)
+    correspondences within ``threshold`` metres: a RANSAC start for the re-weighting.
+
+    Why: where many virtual points are wrong (scans metres apart, repeated structure), the least-squares
+    start of the paper's SVD lies outside the basin of the re-weighting, which then keeps it. No
+    gradient flows through the choice."""
+    batch = source.shape[0]
     with torch.no_grad():
-        src = source[:, triples].reshape(batch * hypotheses, 3, 3).float()
-        tgt = target[:, triples].reshape(batch * hypotheses, 3, 3).float()
-        rotation, translation = weighted_procrustes(src, tgt)
-        rotation = rotation.view(batch, hypotheses, 3, 3)
-        translation = translation.view(batch, hypotheses, 1, 3)
-        moved = source.float().unsqueeze(1) @ rotation.transpose(-1, -2) + translation
-        residual = (moved - target.float().unsqueeze(1)).norm(dim=-1)  # (B, H, K)
+        src, tgt = source.float(), target.float()
+        candidates = []
+        if hypotheses > 0:
+            candidates.append(triple_hypotheses(src, tgt, hypotheses))
+        if seeds > 0:
+            candidates.append(compatible_hypotheses(src, tgt, seeds, group, threshold))
+        rotation = torch.cat([r for r, _ in candidates], dim=1)
+        translation = torch.cat([t for _, t in candidates], dim=1).unsqueeze(2)
+        moved = src.unsqueeze(1) @ rotation.transpose(-1, -2) + translation
+        residual = (moved - tgt.unsqueeze(1)).norm(dim=-1)  # (B, H, K)
         support = (1.0 - (residual / threshold) ** 2).clamp_min(0.0)
         if weights is not None:
             support = support * weights.float().unsqueeze(1)
@@ -184,6 +243,8 @@ def robust_procrustes(
     scale: float = 0.5,
     hypotheses: int = 0,
     threshold: float = 1.0,
+    seeds: int = 0,
+    group: int = 16,
 ) -> tuple[Tensor, Tensor]:
     """:func:`weighted_procrustes` (or, with ``hypotheses``, :func:`consensus_start`), then
     ``iterations`` re-solves with Cauchy weights of each pair's residual ``r``: ``w / (1 + (r / c)²)``
@@ -194,8 +255,8 @@ def robust_procrustes(
     for two scans around their own sensors means towards zero motion. The robust weights are
     detached (iteratively reweighted least squares): the gradient flows through the last solve.
     """
-    if hypotheses > 0:
-        rotation, translation = consensus_start(source, target, weights, hypotheses, threshold)
+    if hypotheses > 0 or seeds > 0:
+        rotation, translation = consensus_start(source, target, weights, hypotheses, threshold, seeds, group)
     else:
         rotation, translation = weighted_procrustes(source, target, weights)
     base = (

@@ -114,6 +114,8 @@ class VCRNet(nn.Module):
             scale=self.config.robust_scale,
             hypotheses=self.config.consensus_hypotheses,
             threshold=self.config.consensus_threshold,
+            seeds=self.config.consensus_seeds,
+            group=self.config.consensus_group,
         )
         if not self.training and self.config.gated_rounds:
             rotation, translation = self._gated_rounds(

@@ -37,6 +37,8 @@ CONFIG_LIMITS: dict[str, int] = {
     "top_j": 1024,
     "robust_iterations": 1000,
     "consensus_hypotheses": 1_000_000,
+    "consensus_seeds": 65_536,
+    "consensus_group": 65_536,
 }
 """Upper bounds on a stored :class:`VcrConfig`'s sizes, checked before a model is built from it.
 
