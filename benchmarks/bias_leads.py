@@ -39,12 +39,18 @@ SHIFTS = (
 )
 
 
-SVD_VARIANTS = (
-    ("paper's SVD", 0, 0),
-    ("5 re-weighting rounds", 5, 0),
-    ("consensus start + 5 rounds", 5, 256),
+_BARE_HEAD = {"robust_iterations": 0, "consensus_hypotheses": 0, "consensus_seeds": 0, "gated_rounds": 0}
+SVD_VARIANTS: tuple[tuple[str, dict[str, int]], ...] = (
+    ("paper's SVD", _BARE_HEAD),
+    ("5 re-weighting rounds", _BARE_HEAD | {"robust_iterations": 5}),
+    ("consensus start + 5 rounds", _BARE_HEAD | {"robust_iterations": 5, "consensus_hypotheses": 256}),
+    (
+        "+ 32 compatible seeds, 3 gated rounds",
+        _BARE_HEAD
+        | {"robust_iterations": 5, "consensus_hypotheses": 256, "consensus_seeds": 32, "gated_rounds": 3},
+    ),
 )
-"""The pose head's variants: (label, robust_iterations, consensus_hypotheses)."""
+"""The pose head's variants, each step of it added in turn: (label, inference settings)."""
 
 
 def vcr_variant(path: Path, label: str, **overrides: Any) -> Any:
@@ -152,7 +158,8 @@ def main() -> None:
         print(
             f"\n## {path.name}: encoder {own.config.encoder}, input range {own.config.input_max_range:g} m, "
             f"{own.config.robust_iterations} robust rounds, {own.config.consensus_hypotheses} consensus "
-            f"hypotheses, pointer sharpened x{own.config.inference_sharpening:g}\n"
+            f"hypotheses, {own.config.consensus_seeds} compatible seeds, {own.config.gated_rounds} gated "
+            f"rounds, pointer sharpened x{own.config.inference_sharpening:g}\n"
         )
         print("| feature change | " + " | ".join(label for label, _, _ in SHIFTS) + " |")
         print("|---|" + "---|" * len(SHIFTS))
@@ -169,11 +176,9 @@ def main() -> None:
         other_sharpening = 1.0 if own.config.inference_sharpening != 1.0 else 64.0
         label = "soft pointer" if other_sharpening == 1.0 else "pointer sharpened x64"
         variants.append(vcr_variant(path, label, inference_sharpening=other_sharpening))
-        for label, robust, consensus in SVD_VARIANTS:
-            if (robust, consensus) != (own.config.robust_iterations, own.config.consensus_hypotheses):
-                variants.append(
-                    vcr_variant(path, label, robust_iterations=robust, consensus_hypotheses=consensus)
-                )
+        for label, settings in SVD_VARIANTS:
+            if any(getattr(own.config, name) != value for name, value in settings.items()):
+                variants.append(vcr_variant(path, label, **settings))
         print(markdown_table(run_gap_sweep(sequence, selection, variants, gaps)))
         print(
             f"\n| gap | pairs | matches within {MATCH_RADIUS_M:g} m of the truth | failed pairs | their matches |"
