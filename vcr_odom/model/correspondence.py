@@ -20,7 +20,8 @@ the motion re-solved; on streets that repeat along their length the best feature
 from the counterpart (weights/MODEL_CARD.md, "Gated re-pointing", gives the figures).
 Deviation (``consensus_seeds`` > 0, inference only): the consensus start also tries motions fitted to
 groups of correspondences that keep each other's pairwise distances (:func:`compatible_hypotheses`),
-where random triples rarely hit a right motion (weights/MODEL_CARD.md, "Compatible seeds").
+where random triples rarely hit a right motion (weights/MODEL_CARD.md, "Compatible seeds and a
+third gated round").
 """
 
 from __future__ import annotations
@@ -246,7 +247,7 @@ def robust_procrustes(
     seeds: int = 0,
     group: int = 16,
 ) -> tuple[Tensor, Tensor]:
-    """:func:`weighted_procrustes` (or, with ``hypotheses``, :func:`consensus_start`), then
+    """:func:`weighted_procrustes` (or, with ``hypotheses`` or ``seeds``, :func:`consensus_start`), then
     ``iterations`` re-solves with Cauchy weights of each pair's residual ``r``: ``w / (1 + (r / c)²)``
     with ``c`` halving each round down to ``scale`` (metres).
 
