@@ -153,6 +153,27 @@ def test_resume_without_checkpoint_or_with_another_model(tmp_path: Path) -> None
         pretrain(TINY, RandomPairs(2), RandomPairs(2), _config(tmp_path, epochs=2), resume=True)
 
 
+def test_a_run_resumes_with_the_pose_head_it_started_with(tmp_path: Path) -> None:
+    """A checkpoint written before a pose-head default changed (here: no compatible seeds, no gated
+    rounds) resumes under today's defaults, and the run goes on with its own settings, which its best
+    file records; the point count still has to match."""
+    started = TINY.with_changes(consensus_seeds=0, gated_rounds=0)
+    train(started, RandomPairs(2), RandomPairs(2), _config(tmp_path, epochs=1))
+    resumed = train(TINY, RandomPairs(2), RandomPairs(2), _config(tmp_path, epochs=2), resume=True)
+    assert len(resumed.history) == 2
+    assert resumed.model.config == started
+    _, stored, _ = load_weights(resumed.best_path, started)
+    assert stored == started
+    with pytest.raises(ConfigError, match="num_points: checkpoint 64, requested 128"):
+        train(
+            TINY.with_changes(num_points=128),
+            RandomPairs(2),
+            RandomPairs(2),
+            _config(tmp_path, epochs=3),
+            resume=True,
+        )
+
+
 def test_pretrain_trains_the_encoder_only_and_feeds_train(tmp_path: Path) -> None:
     data = RandomPairs(2)
     result = pretrain(TINY, data, data, _config(tmp_path / "pre", epochs=3, lr=3e-3))

@@ -15,7 +15,7 @@ import torch
 
 from vcr_odom.errors import ConfigError, DataError
 from vcr_odom.io import atomic_write_bytes
-from vcr_odom.model.config import VcrConfig
+from vcr_odom.model.config import INFERENCE_FIELDS, VcrConfig
 
 CHECKPOINT_VERSION = 1
 
@@ -27,8 +27,18 @@ def save_checkpoint(path: Path, state: dict[str, Any]) -> Path:
     return atomic_write_bytes(path, buffer.getvalue())
 
 
+RESUMED_AS_STARTED: frozenset[str] = frozenset(INFERENCE_FIELDS) - {"num_points", "input_max_range"}
+"""Settings a resumed run takes from its checkpoint where the requested ones differ.
+
+Why: these are the pose head's inference steps, whose defaults change between releases (a release
+that adds a step gives it a new default); a run started before must neither be stranded nor change
+its forward pass halfway. The point count and the crop shape the training caches, so they must match."""
+
+
 def load_checkpoint(path: Path, task: str, model_config: VcrConfig) -> dict[str, Any]:
-    """The checkpoint to resume from, checked to belong to the same task and model configuration."""
+    """The checkpoint to resume from, checked to belong to the same task and model configuration
+    (apart from :data:`RESUMED_AS_STARTED`); ``state["model_config"]`` is the configuration to go on
+    with, as a :class:`VcrConfig`."""
     if not path.is_file():
         raise DataError(f"cannot resume: no checkpoint at {path} (run once without --resume first)")
     try:
@@ -43,8 +53,10 @@ def load_checkpoint(path: Path, task: str, model_config: VcrConfig) -> dict[str,
         stored = VcrConfig.from_dict(state["model_config"])
     except ConfigError as error:
         raise DataError(f"{path}: the stored model configuration is invalid: {error}") from error
-    if stored != model_config:
-        found, wanted = stored.to_dict(), model_config.to_dict()
-        diffs = [f"{k}: checkpoint {found[k]!r}, requested {v!r}" for k, v in wanted.items() if found[k] != v]
+    found, wanted = stored.to_dict(), model_config.to_dict()
+    differing = [k for k, v in wanted.items() if found[k] != v and k not in RESUMED_AS_STARTED]
+    if differing:
+        diffs = [f"{k}: checkpoint {found[k]!r}, requested {wanted[k]!r}" for k in differing]
         raise ConfigError(f"{path}: model configuration differs from the checkpoint ({'; '.join(diffs)})")
+    state["model_config"] = stored
     return state

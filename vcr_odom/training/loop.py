@@ -174,7 +174,9 @@ def _start(
         amp_dtype=amp_dtype,
     )
     if resume:
-        _restore(session, load_checkpoint(config.out / "last.pt", task.name, model_config))
+        state = load_checkpoint(config.out / "last.pt", task.name, model_config)
+        session.model_config = session.net.config = state["model_config"]
+        _restore(session, state)
     elif ctx.main:
         config.out.mkdir(parents=True, exist_ok=True)
         record = {"task": task.name, "model": model_config.to_dict(), "train": config.to_dict()}
