@@ -46,7 +46,7 @@ class PreprocessConfig(Settings):
       facades (vertical) and roofs/overhangs (above the sensor); roads steeper than ~36 % do not occur;
       ``ground_max_attempts=6``: a rejected plane's inliers are set aside and RANSAC runs again; in a
       narrow street three facades can each be larger than the road (an OS1-128 old-town scan: three
-      walls of 19-23 k points before a road of 16 k), and the earlier attempts are unchanged by more;
+      walls of 21-24 k points before a road of 20 k), and the earlier attempts are unchanged by more;
       ``ground_sample_size=10000``: RANSAC scores its hypotheses on a seeded random subset of this
       many points; the winning plane is then refitted (least squares, a few rounds) to the subset's
       points within the threshold (:func:`_refit_plane`), and every point of the scan within the
