@@ -72,10 +72,48 @@ class DistanceBias(nn.Module):
         self.mix = nn.Linear(count, heads, bias=False)
         nn.init.zeros_(self.mix.weight)  # starts as plain attention
 
+    ROW_BLOCK = 128
+    """Rows of the distance matrix evaluated at a time without autograd (a few hundred KB per array)."""
+
+    REACH = 7.0
+    """Widths beyond the outer centres where every basis function is below exp(-REACH² / 2) ≈ 2e-11;
+    distances farther out are evaluated there."""
+
     def forward(self, points: Tensor) -> Tensor:
         distance = torch.cdist(points.float(), points.float())
-        basis = torch.exp(-0.5 * ((distance.unsqueeze(-1) - self.centres) / self.width) ** 2)
-        return self.mix(basis).permute(0, 3, 1, 2)
+        if torch.is_grad_enabled() and self.mix.weight.requires_grad:
+            basis = torch.exp(-0.5 * ((distance.unsqueeze(-1) - self.centres) / self.width) ** 2)
+            return self.mix(basis).permute(0, 3, 1, 2)
+        return self._by_horner(distance)
+
+    def _by_horner(self, distance: Tensor) -> Tensor:
+        """The same biases without autograd, as a polynomial in exp(v) per head.
+
+        Why: the ``(B, N, N, 6)`` basis is 25 MB at N = 1024, and building it took about 30 of the
+        70 ms of a frame's encoding on two CPU cores. The centres are ``width`` apart, so with
+        v = (d - first centre) / width, exp(-(v - c)² / 2) = exp(-v² / 2) · exp(v)^c · exp(-c² / 2):
+        two exponentials per distance instead of six, evaluated in row blocks that stay in cache.
+        Equal to the basis form within float rounding (tested); with six centres the largest power,
+        exp(v)^5 at the clamp, is exp(60), well inside float32."""
+        count = len(self.centres)
+        power = torch.arange(count, dtype=torch.float32, device=distance.device)
+        coefficients = (self.mix.weight.float() * torch.exp(-0.5 * power**2)).tolist()  # (heads, count)
+        batch, rows, columns = distance.shape
+        biases = distance.new_empty(batch, len(coefficients), rows, columns)
+        for first in range(0, rows, self.ROW_BLOCK):
+            block = slice(first, first + self.ROW_BLOCK)
+            v = ((distance[:, block] - float(self.centres[0])) / self.width).clamp_(
+                -self.REACH, count - 1 + self.REACH
+            )
+            growth = torch.exp(v)
+            envelope = torch.exp(v.square_().mul_(-0.5))
+            for head, weights in enumerate(coefficients):
+                value = biases[:, head, block]
+                value.fill_(weights[-1])
+                for weight in reversed(weights[:-1]):
+                    value.mul_(growth).add_(weight)
+                value.mul_(envelope)
+        return biases
 
 
 class SelfAttention(nn.Module):

@@ -79,13 +79,18 @@ class GeometricEdgeConv(EdgeConv):
         super().__init__(in_dim, out_dim)
         self.geometry = nn.Linear(EDGE_DIM, out_dim, bias=False)
 
-    def forward_with_geometry(self, features: Tensor, index: Tensor, geometry: Tensor) -> Tensor:
+    def pooled_with_geometry(self, features: Tensor, index: Tensor, geometry: Tensor) -> Tensor:
+        """``(B, N, C_out)``: the edges' output max-pooled over each point's neighbours.
+
+        The centre's term and the ReLU are the same on all of a point's edges and monotone, so they
+        are applied after the max: max_j ReLU(c_i + e_ij) = ReLU(c_i + max_j e_ij), two passes over
+        N x C values instead of N x k x C (about a quarter of this layer's time on a CPU)."""
         w_neighbour = self.linear.weight[:, : self.in_dim]
         w_centre = self.linear.weight[:, self.in_dim :] - w_neighbour
         neighbour = features @ w_neighbour.T
         centre = features @ w_centre.T + self.linear.bias
-        edges = gather_neighbours(neighbour, index) + centre.unsqueeze(2) + self.geometry(geometry)
-        return torch.relu(edges)
+        strongest = (gather_neighbours(neighbour, index) + self.geometry(geometry)).amax(dim=2)
+        return torch.relu(strongest + centre)
 
 
 class InvariantEncoder(nn.Module):
@@ -118,5 +123,5 @@ class InvariantEncoder(nn.Module):
         edges = self.graph1(x0, feature_graph)
         x1 = edges.amax(dim=2)
         x2 = torch.relu(self.graph2(edges)).amax(dim=2)
-        x3 = self.spatial.forward_with_geometry(x2, spatial_graph, geometry).amax(dim=2)
+        x3 = self.spatial.pooled_with_geometry(x2, spatial_graph, geometry)
         return self.output(torch.cat([x0, x1, x2, x3], dim=-1))
