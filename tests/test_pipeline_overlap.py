@@ -6,6 +6,7 @@ import threading
 
 import numpy as np
 import pytest
+import torch
 
 from vcr_odom.errors import DataError
 from vcr_odom.metrics import trajectory_pair_errors
@@ -109,6 +110,49 @@ def test_an_error_in_the_producer_reaches_the_caller(synth: SynthSequence) -> No
     with pytest.raises(DataError, match="frame 5: truncated"):
         run_odometry(BrokenFrame(), Odometry(IndexedOracle(synth)), range(8), prefetch=2)
     assert not any(thread.name == "odometry-producer" for thread in threading.enumerate())
+
+
+class ThreadCountingOracle(IndexedOracle):
+    """Records torch's CPU thread count wherever the registrar works: prepare (the producer thread
+    when the loop prepares ahead) and register (the consumer)."""
+
+    def __init__(self, sequence: SynthSequence) -> None:
+        super().__init__(sequence)
+        self.threads: dict[str, set[int]] = {"prepare": set(), "register": set()}
+
+    def prepare(self, points: np.ndarray) -> int:
+        self.threads["prepare"].add(torch.get_num_threads())
+        return super().prepare(points)
+
+    def register(
+        self, source: int, target: int, initial_guess: np.ndarray | None = None
+    ) -> RegistrationResult:
+        self.threads["register"].add(torch.get_num_threads())
+        return super().register(source, target, initial_guess)
+
+
+@pytest.mark.parametrize(
+    ("consult", "prefetch", "shared"),
+    [("every-frame", 2, True), ("every-frame", 0, False), ("on-doubt", 2, False)],
+)
+def test_the_two_threads_share_the_cores_only_where_both_run_the_registrar(
+    synth: SynthSequence, consult: str, prefetch: int, shared: bool
+) -> None:
+    """With the network on every pair and the frames prepared ahead, the encoder (producer) and the
+    pose head (consumer) run at once: each gets half of torch's threads, and the count is restored."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(4)
+    try:
+        oracle = ThreadCountingOracle(synth)
+        doubt = DoubtRule(ratio=2.0)  # on-doubt asks on every pair: both calls are seen
+        run_odometry(
+            synth, Odometry(oracle, IcpPolish(), consult=consult, doubt=doubt), range(5), prefetch=prefetch
+        )
+        expected = {2} if shared else {4}
+        assert oracle.threads == {"prepare": expected, "register": expected}
+        assert torch.get_num_threads() == 4
+    finally:
+        torch.set_num_threads(before)
 
 
 def test_an_assumed_frame_rate_only_flags_motions_it_calls_implausible() -> None:

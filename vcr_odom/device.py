@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
+
 import torch
 
 from vcr_odom.errors import ConfigError
@@ -20,3 +23,19 @@ def resolve_device(name: str, local_rank: int = 0) -> torch.device:
             )
         return torch.device("cuda", local_rank)
     return torch.device("cpu")
+
+
+@contextmanager
+def cores_shared_by(workers: int) -> Iterator[None]:
+    """torch's CPU threads divided among ``workers`` threads that run torch work at the same time, and
+    restored afterwards (torch's thread count is process-wide).
+
+    Why: with the network on every pair, one thread encodes the next frame while another registers
+    the current pair; each asking torch for every core left the two fighting over them (on two cores
+    the network's stages took 20-40 % longer than alone, README "Benchmarks and speed")."""
+    previous = torch.get_num_threads()
+    torch.set_num_threads(max(1, previous // max(1, workers)))
+    try:
+        yield
+    finally:
+        torch.set_num_threads(previous)

@@ -116,6 +116,12 @@ class Odometry:
         (its C++ holds Python's GIL, so a thread only adds switching; README "Benchmarks and speed")."""
         return self.polish is None or self.polish.prepare_ahead
 
+    @property
+    def registrar_works_ahead(self) -> bool:
+        """Whether the registrar's per-frame work (VCR-Net's encoder) runs in :meth:`prepare`, so that a
+        loop preparing ahead runs it beside :meth:`register`'s (``consult="every-frame"``)."""
+        return self.consult == "every-frame" and self.prepare_ahead
+
     def reset(self, *, timestamps_assumed: bool = False) -> None:
         """Forget the previous frame and the pose: the next frame is the first (identity).
 

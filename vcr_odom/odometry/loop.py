@@ -20,6 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from vcr_odom.data.base import LidarSequence, Points
+from vcr_odom.device import cores_shared_by
 from vcr_odom.errors import ConfigError
 from vcr_odom.geometry import Transform
 from vcr_odom.odometry.chain import Odometry, PreparedFrame, Step
@@ -182,24 +183,28 @@ def run_odometry(
     produce = _produce(sequence, method, chunks, timer)
     stop = threading.Event()
     items = _ahead(produce, prefetch, stop) if prefetch else produce
-    try:
-        while True:
-            with timer("waiting" if prefetch else "_serial"):
-                item = next(items, None)
-            if item is None:
-                break
-            for index, (points, _), step in zip(item[0], item[1], _steps(method, item, timer), strict=True):
-                poses.append(np.asarray(step.pose, dtype=np.float64))
-                infos.append(step.info)
-                used.append(index)
-                if on_frame is not None:
-                    on_frame(index, step.pose, points)
-    except KeyboardInterrupt:
-        interrupted = True
-    finally:
-        stop.set()
-        if hasattr(items, "close"):
-            items.close()
+    overlapped = bool(prefetch) and isinstance(method, Odometry) and method.registrar_works_ahead
+    with cores_shared_by(2 if overlapped else 1):
+        try:
+            while True:
+                with timer("waiting" if prefetch else "_serial"):
+                    item = next(items, None)
+                if item is None:
+                    break
+                for index, (points, _), step in zip(
+                    item[0], item[1], _steps(method, item, timer), strict=True
+                ):
+                    poses.append(np.asarray(step.pose, dtype=np.float64))
+                    infos.append(step.info)
+                    used.append(index)
+                    if on_frame is not None:
+                        on_frame(index, step.pose, points)
+        except KeyboardInterrupt:
+            interrupted = True
+        finally:
+            stop.set()
+            if hasattr(items, "close"):
+                items.close()
     wall = time.perf_counter() - started
     stages = {name: seconds for name, seconds in timer.seconds.items() if not name.startswith("_")}
     consumer = sum(stages.get(name, 0.0) for name in ("register", "advance", "step", "waiting"))
