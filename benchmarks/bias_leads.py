@@ -6,7 +6,7 @@ gets its own measurement on the same frames, VCR alone, one pass:
 - ``shift``: relative change of the encoder's features when the whole cloud is shifted by 5 and 20 m
   or turned by 30° about z (0 for features that depend on relative geometry only);
 - ``far``: share of the network's N points beyond 40 m with the weights' own input range, and with
-  the old 80 m crop;
+  the 80 m crop where that is not already the weights' own;
 - ``range``: the gap sweep with the weights' input range and with the other crop (80 / 40 m);
 - ``pointer``: the gap sweep with the soft pointer's learned temperature and with it divided by 64
   (each virtual point nearly its best candidate, not a blend drawn towards the target's middle);
@@ -167,10 +167,11 @@ def main() -> None:
         print(
             "| relative ‖Δf‖ / ‖f‖ | " + " | ".join(f"{shifts[label]:.2e}" for label, _, _ in SHIFTS) + " |"
         )
-        print(
-            f"\npoints beyond 40 m: {100 * far_share(own, raw, own.config.input_max_range):.1f} % with the "
-            f"{own.config.input_max_range:g} m crop, {100 * far_share(own, raw, 80.0):.1f} % with 80 m\n"
-        )
+        own_far = f"{100 * far_share(own, raw, own.config.input_max_range):.1f} % with the weights' "
+        own_far += f"{own.config.input_max_range:g} m crop"
+        if own.config.input_max_range != 80.0:
+            own_far += f", {100 * far_share(own, raw, 80.0):.1f} % with 80 m"
+        print(f"\npoints beyond 40 m: {own_far}\n")
         other_range = 40.0 if own.config.input_max_range > 40.0 else 80.0
         variants = [own, vcr_variant(path, f"{other_range:g} m crop", input_max_range=other_range)]
         other_sharpening = 1.0 if own.config.inference_sharpening != 1.0 else 64.0
