@@ -31,8 +31,8 @@ def cores_shared_by(workers: int) -> Iterator[None]:
     restored afterwards (torch's thread count is process-wide).
 
     Why: with the network on every pair, one thread encodes the next frame while another registers
-    the current pair; each asking torch for every core left the two fighting over them (on two cores
-    the network's stages took 20-40 % longer than alone, README "Benchmarks and speed")."""
+    the current pair; each asking torch for every core left the two fighting over them (on two cores,
+    one torch thread each ran 15 % more frames a second; README "Benchmarks and speed")."""
     previous = torch.get_num_threads()
     torch.set_num_threads(max(1, previous // max(1, workers)))
     try:

@@ -64,6 +64,13 @@ class DistanceBias(nn.Module):
     CENTRES_M = (0.0, 75.0, 6)
     """Gaussian centres (start, stop, count) over the distances a 2 x 40 m crop can hold."""
 
+    ROW_BLOCK = 128
+    """Rows of the distance matrix evaluated at a time without autograd (a few hundred KB per array)."""
+
+    REACH = 7.0
+    """Widths beyond the outer centres where every basis function is below exp(-REACH² / 2) ≈ 2e-11;
+    distances farther out are evaluated there."""
+
     def __init__(self, heads: int) -> None:
         super().__init__()
         start, stop, count = self.CENTRES_M
@@ -71,13 +78,6 @@ class DistanceBias(nn.Module):
         self.width = (stop - start) / (count - 1)
         self.mix = nn.Linear(count, heads, bias=False)
         nn.init.zeros_(self.mix.weight)  # starts as plain attention
-
-    ROW_BLOCK = 128
-    """Rows of the distance matrix evaluated at a time without autograd (a few hundred KB per array)."""
-
-    REACH = 7.0
-    """Widths beyond the outer centres where every basis function is below exp(-REACH² / 2) ≈ 2e-11;
-    distances farther out are evaluated there."""
 
     def forward(self, points: Tensor) -> Tensor:
         distance = torch.cdist(points.float(), points.float())
