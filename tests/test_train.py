@@ -18,7 +18,15 @@ from torch.utils.data import Dataset
 from vcr_odom.errors import ConfigError, DataError
 from vcr_odom.model import VcrConfig
 from vcr_odom.model.weights import load_weights, save_weights
-from vcr_odom.training import ProgressEvent, TrainConfig, pose_errors, pretrain, resolve_device, train
+from vcr_odom.training import (
+    ProgressEvent,
+    TrainConfig,
+    TrainResult,
+    pose_errors,
+    pretrain,
+    resolve_device,
+    train,
+)
 
 TINY = VcrConfig(
     num_points=64,
@@ -137,18 +145,17 @@ def test_resume_equals_straight_training(tmp_path: Path) -> None:
     assert straight.history == resumed.history
 
 
+def _resume(model_config: VcrConfig, tmp_path: Path, epochs: int) -> TrainResult:
+    """``train`` resumed from the checkpoint in ``tmp_path``, with two random pairs."""
+    return train(model_config, RandomPairs(2), RandomPairs(2), _config(tmp_path, epochs=epochs), resume=True)
+
+
 def test_resume_without_checkpoint_or_with_another_model(tmp_path: Path) -> None:
     with pytest.raises(DataError, match="no checkpoint"):
         train(TINY, RandomPairs(2), RandomPairs(2), _config(tmp_path, epochs=1), resume=True)
     train(TINY, RandomPairs(2), RandomPairs(2), _config(tmp_path, epochs=1))
     with pytest.raises(ConfigError, match="top_j: checkpoint 4, requested 8"):
-        train(
-            TINY.with_changes(top_j=8),
-            RandomPairs(2),
-            RandomPairs(2),
-            _config(tmp_path, epochs=2),
-            resume=True,
-        )
+        _resume(TINY.with_changes(top_j=8), tmp_path, epochs=2)
     with pytest.raises(ConfigError, match="'train' checkpoint"):
         pretrain(TINY, RandomPairs(2), RandomPairs(2), _config(tmp_path, epochs=2), resume=True)
 
@@ -159,19 +166,13 @@ def test_a_run_resumes_with_the_pose_head_it_started_with(tmp_path: Path) -> Non
     file records; the point count still has to match."""
     started = TINY.with_changes(consensus_seeds=0, gated_rounds=0)
     train(started, RandomPairs(2), RandomPairs(2), _config(tmp_path, epochs=1))
-    resumed = train(TINY, RandomPairs(2), RandomPairs(2), _config(tmp_path, epochs=2), resume=True)
+    resumed = _resume(TINY, tmp_path, epochs=2)
     assert len(resumed.history) == 2
     assert resumed.model.config == started
     _, stored, _ = load_weights(resumed.best_path, started)
     assert stored == started
     with pytest.raises(ConfigError, match="num_points: checkpoint 64, requested 128"):
-        train(
-            TINY.with_changes(num_points=128),
-            RandomPairs(2),
-            RandomPairs(2),
-            _config(tmp_path, epochs=3),
-            resume=True,
-        )
+        _resume(TINY.with_changes(num_points=128), tmp_path, epochs=3)
 
 
 def test_pretrain_trains_the_encoder_only_and_feeds_train(tmp_path: Path) -> None:
