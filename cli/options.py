@@ -105,7 +105,8 @@ def sequence_options(function: F) -> F:
             help="With --dataloader: the recording (a .bag/.mcap/.pcap file, a ROS 2 bag folder, a dataset root).",
         ),
         click.option(
-            "--topic", help="With --dataloader rosbag/mcap: the PointCloud2 topic (needed if several)."
+            "--topic",
+            help="With --dataloader rosbag/mcap: the PointCloud2 or Livox CustomMsg topic (needed if several).",
         ),
         click.option("--frames", default=None, metavar="A:B", help="Only frames A..B-1 (Python slice)."),
         click.option(

@@ -8,7 +8,11 @@ rest of vcr-odom expects of a sequence, added here:
 - **Errors that say what to do.** The loaders ``print`` and ``sys.exit`` on a missing package or an
   ambiguous topic; here a missing package is a ConfigError naming the pip extra to install (checked
   before the loader is imported), and anything a loader prints before failing ends up in one DataError
-  or ConfigError that names the recording (and, for topics, lists the PointCloud2 topics to choose from).
+  or ConfigError that names the recording (and, for topics, lists the point-cloud topics to choose from).
+- **Livox scans.** Topics of ``livox_ros_driver(2)/CustomMsg`` are read as well as PointCloud2 ones
+  (see :mod:`~vcr_odom.data.livox`): the loaders' topic check is replaced by one that knows both, and a
+  CustomMsg topic's frames are converted from the message bytes. Their stamps are the header stamps
+  (the drivers set them to the scan's ``timebase``, the sensor clock), in ROS bags too.
 - **Random access.** The ROS bag and MCAP loaders only stream (``dataset[i]`` returns the *next*
   message whatever ``i`` is); frames are read forward here, skipping undecoded messages for a stride and
   re-opening the recording to go back.
@@ -30,11 +34,11 @@ import importlib
 import importlib.util
 import io
 import os
-import re
 import struct
 import threading
 import warnings
 import weakref
+from collections.abc import Iterator
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
@@ -44,9 +48,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from vcr_odom.data.base import Points
+from vcr_odom.data.livox import is_custom_msg, points_from_custom_msg
 from vcr_odom.data.pointcloud2 import points_from_pointcloud2
 from vcr_odom.data.scans import SequenceBase, clean_points, folder_times_remedy
-from vcr_odom.errors import ConfigError, DataError, DataWarning
+from vcr_odom.errors import ConfigError, DataError, DataWarning, VcrOdomError
 from vcr_odom.geometry import project_to_se3
 
 
@@ -143,27 +148,110 @@ def check_loader(loader: str) -> str:
     return loader
 
 
-def _topics_listed(printed: str) -> list[str]:
-    return re.findall(r"^--topic (\S+)", printed, flags=re.MULTILINE)
+POINT_CLOUD2 = "sensor_msgs/msg/PointCloud2"
 
 
-def _open_error(
-    loader: str, path: Path, topic: str | None, printed: str, error: BaseException | None
-) -> Exception:
+def _listed(topics: dict[str, str]) -> str:
+    """``/a, /b`` when all are one type, else ``/a (type), /b (type)``."""
+    if len(set(topics.values())) == 1:
+        return ", ".join(topics)
+    return ", ".join(f"{name} ({msgtype})" for name, msgtype in topics.items())
+
+
+def choose_topic(found: dict[str, str], topic: str | None, path: Path, loader: str) -> str:
+    """The topic to read among ``found`` (topic -> message type): ``topic`` if given, else the only
+    PointCloud2 or Livox CustomMsg topic; ConfigError or DataError listing the candidates otherwise."""
+    clouds = {
+        name: kind for name, kind in sorted(found.items()) if kind == POINT_CLOUD2 or is_custom_msg(kind)
+    }
+    if topic:
+        if topic in clouds:
+            return topic
+        what = f"a {found[topic]} topic, not" if topic in found else "not"
+        raise ConfigError(
+            f"--topic {topic} is {what} a PointCloud2 or Livox CustomMsg topic of {path}; "
+            f"its point-cloud topics: {_listed(clouds) or 'none'}"
+        )
+    if len(clouds) == 1:
+        return next(iter(clouds))
+    if not clouds:
+        others = f"; its topics: {_listed(dict(sorted(found.items())))}" if found else ""
+        raise DataError(
+            f"{path}: no sensor_msgs/msg/PointCloud2 or Livox CustomMsg topic "
+            f"(the {loader} loader reads point clouds){others}"
+        )
+    kinds = {"PointCloud2" if kind == POINT_CLOUD2 else "Livox CustomMsg" for kind in clouds.values()}
+    what = kinds.pop() if len(kinds) == 1 else "point-cloud"
+    raise ConfigError(f"{path} has several {what} topics ({_listed(clouds)}); choose one with --topic")
+
+
+class _RosbagTopics:
+    """Over kiss-icp's RosbagDataset: :func:`choose_topic`, and CustomMsg frames from the raw bytes."""
+
+    recording: Path
+    msgtype: str
+
+    def check_topic(self, topic: str | None) -> str:
+        found = {name: info.msgtype for name, info in self.bag.topics.items()}
+        chosen = choose_topic(found, topic, self.recording, "rosbag")
+        self.msgtype = found[chosen]
+        return chosen
+
+    def __getitem__(self, idx: int) -> Any:
+        if not is_custom_msg(self.msgtype):
+            return super().__getitem__(idx)
+        _, _, rawdata = next(self.msgs)
+        return self.read_point_cloud(rawdata)
+
+
+class _McapTopics:
+    """Over kiss-icp's McapDataloader: :func:`choose_topic`, and CustomMsg frames from the raw CDR bytes
+    (read with ``mcap`` alone, so they need no schema that ``mcap_ros2`` could decode)."""
+
+    recording: Path
+    msgtype: str
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        if is_custom_msg(self.msgtype):
+            self.reset()
+
+    def check_topic(self, topic: str | None) -> str:
+        schemas = self.summary.schemas
+        found = {
+            channel.topic: schemas[channel.schema_id].name if channel.schema_id in schemas else ""
+            for channel in self.summary.channels.values()
+        }
+        chosen = choose_topic(found, topic, self.recording, "mcap")
+        self.msgtype = found[chosen]
+        return chosen
+
+    def reset(self) -> None:
+        if not is_custom_msg(self.msgtype):
+            return super().reset()
+        self.timestamps = []
+        self.msgs = _mcap_payloads(self.mcap_file, self.topic)
+
+    def __getitem__(self, idx: int) -> Any:
+        if not is_custom_msg(self.msgtype):
+            return super().__getitem__(idx)
+        return self.read_point_cloud(next(self.msgs))
+
+
+def _mcap_payloads(path: str, topic: str) -> Iterator[bytes]:
+    """The serialized messages of ``topic``, in log-time order; the file closes with the generator."""
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as handle:
+        for _, _, message in make_reader(handle).iter_messages(topics=[topic]):
+            yield message.data
+
+
+_TOPIC_CHOICE = {"rosbag": _RosbagTopics, "mcap": _McapTopics}
+
+
+def _open_error(loader: str, path: Path, printed: str, error: BaseException | None) -> Exception:
     """One clear error from what a loader printed before it exited or raised."""
-    topics = _topics_listed(printed)
-    if topics and topic:
-        return ConfigError(
-            f"--topic {topic} is not a PointCloud2 topic of {path}; its PointCloud2 topics: {', '.join(topics)}"
-        )
-    if topics:
-        return ConfigError(
-            f"{path} has several PointCloud2 topics ({', '.join(topics)}); choose one with --topic"
-        )
-    if "does not contain any" in printed:
-        return DataError(
-            f"{path}: no sensor_msgs/msg/PointCloud2 topic (the {loader} loader reads point clouds)"
-        )
     said = " ".join(
         line.strip() for line in printed.splitlines() if line.strip() and not line.startswith("-")
     )
@@ -177,6 +265,12 @@ def _ros2_header_stamp(data: bytes) -> float:
     order = "<" if data[1] & 1 else ">"
     sec, nanosec = struct.unpack_from(f"{order}iI", data, 4)
     return sec + float(nanosec) / 1e9  # as kiss-icp's McapDataloader.stamp_to_sec
+
+
+def _ros1_header_stamp(data: bytes) -> float:
+    """``header.stamp`` of a ROS 1 message, in seconds: after the header's ``uint32 seq``, little-endian."""
+    sec, nsec = struct.unpack_from("<II", data, 4)
+    return sec + float(nsec) / 1e9
 
 
 def _release(dataset: Any) -> None:
@@ -234,10 +328,10 @@ class KissLoaderSequence(SequenceBase):
         self.name = f"{loader}/{label}"
         self.sequence_path = self.path
         self.topic = getattr(self.dataset, "topic", None)
-        if self.info.streaming:  # the loaders' own hook for message -> points (not bound to self: see close)
-            self.dataset.read_point_cloud = partial(
-                points_from_pointcloud2, source=f"{self.path} ({self.topic})"
-            )
+        if self.info.streaming:
+            if self._count == 0:
+                raise DataError(f"{self.path}: no messages on {self.topic} ({self.dataset.msgtype})")
+            self.dataset.read_point_cloud = self._converter()
 
         self.poses_path = Path(poses).expanduser() if poses is not None else None
         self.calib_path = Path(calib).expanduser() if calib is not None else None
@@ -263,6 +357,14 @@ class KissLoaderSequence(SequenceBase):
     def __exit__(self, *_: object) -> None:
         self.close()
 
+    def _converter(self) -> Any:
+        """The loaders' own hook for message -> points (not bound to self: see close)."""
+        source = f"{self.path} ({self.topic})"
+        if is_custom_msg(self.dataset.msgtype):
+            cdr = self.loader == "mcap" or self.dataset.bag.is2
+            return partial(points_from_custom_msg, cdr=cdr, source=source)
+        return partial(points_from_pointcloud2, source=source)
+
     def _open(self, sequence: str | None, topic: str | None) -> Any:
         """The loader, built as kiss-icp's ``dataset_factory`` builds it, without that function's parse
         of every loader's source (which only finds the class name, and warns about kiss-icp's regexes)."""
@@ -271,17 +373,26 @@ class KissLoaderSequence(SequenceBase):
         try:
             with contextlib.redirect_stdout(printed):
                 module = importlib.import_module(f"kiss_icp.datasets.{self.loader}")
-                return getattr(module, self.info.cls)(data_dir=self.path, **options)
+                loader = getattr(module, self.info.cls)
+                if self.loader in _TOPIC_CHOICE:
+                    fields = {"recording": self.path}
+                    loader = type(loader.__name__, (_TOPIC_CHOICE[self.loader], loader), fields)
+                return loader(data_dir=self.path, **options)
+        except VcrOdomError:
+            raise
         except SystemExit as error:  # the loaders exit after printing what went wrong
-            raise _open_error(self.loader, self.path, topic, printed.getvalue(), None) from error
+            raise _open_error(self.loader, self.path, printed.getvalue(), None) from error
         except Exception as error:
-            raise _open_error(self.loader, self.path, topic, printed.getvalue(), error) from error
+            raise _open_error(self.loader, self.path, printed.getvalue(), error) from error
 
     def _recorded_stamps(self) -> NDArray[np.float64] | None:
         """Every frame's stamp in seconds, as the loader would report it, or None where it gives none."""
         dataset = self.dataset
         if self.loader == "rosbag":
             messages = dataset.bag.messages(connections=dataset.connections)
+            if is_custom_msg(dataset.msgtype):  # header stamps: see the module's docstring
+                header_stamp = _ros2_header_stamp if dataset.bag.is2 else _ros1_header_stamp
+                return np.array([header_stamp(data) for _, _, data in messages], dtype=np.float64)
             return np.array([dataset.to_sec(stamp) for _, stamp, _ in messages], dtype=np.float64)
         if self.loader == "mcap":
             from mcap.reader import make_reader
