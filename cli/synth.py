@@ -9,7 +9,14 @@ import click
 from vcr_odom.cli.config_options import config_options
 from vcr_odom.cli.progress import EXIT_CODES_HELP, console, frame_progress
 from vcr_odom.results import check_output_folder
-from vcr_odom.synth import SCENE_STYLES, SENSOR_MODELS, SEQUENCE_NAME, SynthConfig, generate_sequence
+from vcr_odom.synth import (
+    SCENE_STYLES,
+    SENSOR_MODELS,
+    SEQUENCE_NAME,
+    SynthConfig,
+    SynthSequence,
+    write_sequence,
+)
 
 
 def _check_seq(ctx: click.Context, param: click.Parameter, value: str) -> str:
@@ -44,7 +51,8 @@ def _check_seq(ctx: click.Context, param: click.Parameter, value: str) -> str:
     "--height",
     type=click.FloatRange(min=0.3, max=5.0),
     default=None,
-    help="Sensor height above the ground in m (default 1.73, KITTI's mounting).",
+    help="Sensor height above the ground in m (default 1.73, KITTI's mounting; with --motion "
+    "handheld, a hand height of 1.2-1.6 m drawn from the seed).",
 )
 @click.option(
     "--scene",
@@ -67,6 +75,7 @@ def _check_seq(ctx: click.Context, param: click.Parameter, value: str) -> str:
     show_default=True,
     help="Frames per second (times.txt and the motion between frames follow it), e.g. 2 for a 2 Hz scanner.",
 )
+@config_options(SynthConfig, ("motion", "keyframes", "keyframe_angle", "thin"))
 def synth(
     out: Path,
     seq: str,
@@ -78,30 +87,43 @@ def synth(
     scene: str,
     stops: bool,
     rate_hz: float,
+    motion: str,
+    keyframes: float | None,
+    keyframe_angle: float,
+    thin: float | None,
 ) -> None:
     """Generate a synthetic LiDAR sequence with exact ground truth (the built-in data set).
 
     The sequence is written beside its place and renamed into it, so an interrupted synth over an
-    existing sequence leaves the old or the new one, never a mix.
+    existing sequence leaves the old or the new one, never a mix. With --keyframes, --frames frames
+    are generated and only the keyframes among them written (numbered from 0, with their own times
+    and poses).
     """
     check_output_folder(out, "--out")
-    with frame_progress(f"synth seed {seed}", frames) as advance:
-        written = generate_sequence(
-            out,
-            seq,
-            progress=advance,
-            frames=frames,
-            seed=seed,
-            speed=speed,
-            sensor=sensor,
-            height=height,
-            scene=scene,
-            stops=stops,
-            frame_period=1.0 / rate_hz,
-        )
-    console.print(f"Wrote {written.frames} frames to {written.seq_dir} and poses to {written.poses_file}")
+    config = SynthConfig(
+        frames=frames,
+        seed=seed,
+        speed=speed,
+        sensor=sensor,
+        height=height,
+        scene=scene,
+        stops=stops,
+        frame_period=1.0 / rate_hz,
+        motion=motion,
+        keyframes=keyframes,
+        keyframe_angle=keyframe_angle,
+        thin=thin,
+    )
+    sequence = SynthSequence(config)
+    with frame_progress(f"synth seed {seed}", len(sequence)) as advance:
+        written = write_sequence(sequence, out, seq, progress=advance)
+    kept = f" (keyframes of {written.generated})" if written.frames != written.generated else ""
     console.print(
-        f"Drive: {written.length:.1f} m in {written.duration:.1f} s "
+        f"Wrote {written.frames} frames{kept} to {written.seq_dir} and poses to {written.poses_file}"
+    )
+    what = "Walk" if written.motion == "handheld" else "Drive"
+    console.print(
+        f"{what}: {written.length:.1f} m in {written.duration:.1f} s "
         f"({written.frames / written.seconds:.1f} frames/s generated); "
         f"{written.sensor} at {written.height:.2f} m, {written.scene} scene"
     )

@@ -13,7 +13,9 @@ Modules, from the ground up: :mod:`~vcr_odom.synth.mesh` (triangles and primitiv
 (placing them block by block), :mod:`~vcr_odom.synth.styles` (the ``--scene`` styles),
 :mod:`~vcr_odom.synth.scene` (the world for one seed, built lazily), :mod:`~vcr_odom.synth.sensor`
 (sensor models and ray casting), :mod:`~vcr_odom.synth.drive` (the car's path and speeds),
-:mod:`~vcr_odom.synth.sequence` (the sequence) and :mod:`~vcr_odom.synth.kitti_layout` (writing it).
+:mod:`~vcr_odom.synth.handheld` (a walk with a handheld scanner), :mod:`~vcr_odom.synth.keyframes`
+(keyframes and voxel thinning), :mod:`~vcr_odom.synth.sequence` (the sequence) and
+:mod:`~vcr_odom.synth.kitti_layout` (writing it).
 """
 
 from vcr_odom.synth.calibration import KITTI_TR, kitti_calib

@@ -34,6 +34,7 @@ class WrittenSequence:
     seq_dir: Path
     poses_file: Path
     frames: int
+    """Frames written (the keyframes, with ``keyframes``)."""
     length: float
     """Distance driven (m)."""
     duration: float
@@ -44,6 +45,10 @@ class WrittenSequence:
     height: float
     """Sensor mounting height (m)."""
     scene: str
+    generated: int
+    """Frames generated, of which ``frames`` were written."""
+    motion: str
+    """``car`` or ``handheld``."""
 
 
 def write_bin(path: Path, points: NDArray[np.float32]) -> Path:
@@ -68,7 +73,8 @@ def write_sequence(
     existing sequence leaves the old one or the new one, never frames of both: at worst a sequence
     without its poses file, which is how an incomplete sequence shows. A folder holding files synth
     does not write (a real dataset's images, say) is refused rather than replaced. ``progress`` is
-    called with the number of frames written so far.
+    called with the number of frames written so far. Only the sequence's frames are written: with
+    keyframes, the kept ones, numbered from 0, with their own times and poses.
     """
     if not SEQUENCE_NAME.match(seq):
         raise ConfigError(f"seq must be letters, digits, '-' or '_', got {seq!r}")
@@ -107,6 +113,8 @@ def write_sequence(
         sensor=sequence.sensor.name,
         height=sequence.sensor.height,
         scene=sequence.scene_style,
+        generated=sequence.frames,
+        motion=sequence.motion,
     )
 
 
@@ -144,6 +152,7 @@ def generate_sequence(
     """Generate a synthetic sequence and write it in the KITTI layout (``<out_root>/sequences/<seq>``).
 
     ``options`` are :class:`SynthConfig` fields (``frames``, ``seed``, ``speed``, ``sensor``,
-    ``height``, ``scene``, ``stops``, ``frame_period``), applied on top of ``config`` when one is given.
+    ``height``, ``scene``, ``stops``, ``frame_period``, ``motion``, ``keyframes``, ``keyframe_angle``,
+    ``thin``), applied on top of ``config`` when one is given.
     """
     return write_sequence(SynthSequence(config, **options), out_root, seq, progress)

@@ -9,18 +9,26 @@ identity, the convention of every sequence the odometry reads.
 from __future__ import annotations
 
 from functools import cached_property
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import Field, field_validator
+from pydantic import Field, field_validator, model_validator
 
 from vcr_odom.geometry import invert
 from vcr_odom.settings import Settings
 from vcr_odom.synth.calibration import KITTI_TR
 from vcr_odom.synth.drive import Drive, make_drive
+from vcr_odom.synth.handheld import MAX_SPEED, hand_height, make_walk
+from vcr_odom.synth.keyframes import KEYFRAME_ANGLE, select_keyframes, thin_voxels
 from vcr_odom.synth.scene import StreetScene
-from vcr_odom.synth.sensor import SENSOR_MODELS, LidarSimulator, MountingHeight, SensorConfig
+from vcr_odom.synth.sensor import (
+    SENSOR_MODELS,
+    SPINNING_MODELS,
+    LidarSimulator,
+    MountingHeight,
+    SensorConfig,
+)
 from vcr_odom.synth.styles import SCENE_STYLES
 
 FRAME_PERIOD = 0.1
@@ -30,12 +38,15 @@ HEIGHT_RANGE = (1.5, 2.1)
 
 
 class SynthConfig(Settings):
-    """What a synthetic sequence is: its length, seed, speed, sensor, street style, stops and frame rate.
+    """What a synthetic sequence is: its length, seed, speed, sensor, street style, stops, frame rate,
+    motion (a car or a walker with a handheld scanner) and what of it is kept (keyframes, thinning).
 
     The same configuration always gives byte-identical frames and poses (shipped weights and training
-    caches were made from them). ``sensor`` may be given as a preset name (:data:`SENSOR_MODELS`);
-    ``height`` overrides its mounting height (m). ``window`` is how many consecutive frames share one
-    ray-casting scene: it bounds memory and never changes a frame.
+    caches were made from them; the new fields' defaults keep them so). ``sensor`` may be given as a
+    preset name (:data:`SENSOR_MODELS`); ``height`` overrides its mounting height (m), or the hand
+    height of a walk. ``window`` is how many consecutive frames share one ray-casting scene: it bounds
+    memory and never changes a frame. ``frames`` counts the generated frames; with ``keyframes`` only
+    some of them make the sequence.
     """
 
     frames: int = Field(default=200, ge=2, description="Number of frames.")
@@ -57,6 +68,33 @@ class SynthConfig(Settings):
     frame_period: float = Field(default=FRAME_PERIOD, ge=0.02, le=1.0)
     """Seconds between frames: 1-50 Hz."""
     window: int = Field(default=200, ge=1)
+    motion: Literal["car", "handheld"] = Field(
+        default="car",
+        description="car: a car drives the road. handheld: a person walks beside the road (1.0-1.6 m/s, "
+        "pauses, step bobbing, tilts up to +-15 deg, look-around turns up to 90 deg/s) holding the "
+        "sensor 1.2-1.6 m high (--height sets it).",
+    )
+    keyframes: float | None = Field(
+        default=None,
+        gt=0.0,
+        le=100.0,
+        description="Keep only keyframes: frames where the sensor moved at least this many metres or "
+        "turned at least --keyframe-angle since the last kept one (e.g. 1.0); times and poses are "
+        "those of the kept frames. Default: every frame.",
+    )
+    keyframe_angle: float = Field(
+        default=KEYFRAME_ANGLE,
+        gt=0.0,
+        le=180.0,
+        description="With --keyframes: a turn of this many degrees also makes a keyframe.",
+    )
+    thin: float | None = Field(
+        default=None,
+        ge=0.01,
+        le=10.0,
+        description="Voxel-thin each written cloud to one measured point (with its reflectance) per "
+        "cube of this size in m (e.g. 0.3). Default: no thinning.",
+    )
 
     @field_validator("sensor", mode="before")
     @classmethod
@@ -76,14 +114,34 @@ class SynthConfig(Settings):
             raise ValueError(f"must be one of {', '.join(SCENE_STYLES)}")
         return value
 
+    @model_validator(mode="after")
+    def _car_options_need_the_car(self) -> SynthConfig:
+        if self.motion == "handheld":
+            default_speed = type(self).model_fields["speed"].default
+            if self.speed != default_speed:
+                raise ValueError(
+                    f"speed: applies to motion 'car' only; a handheld walk keeps its own 1.0-1.6 m/s "
+                    f"(got speed {self.speed:g} with motion 'handheld')"
+                )
+            if self.stops:
+                raise ValueError(
+                    "stops: applies to motion 'car' only; a handheld walk pauses now and then by itself"
+                )
+        return self
+
     @property
     def mounted_sensor(self) -> SensorConfig:
-        """The sensor at its mounting height (``height`` when given)."""
-        return self.sensor if self.height is None else self.sensor.with_changes(height=self.height)
+        """The sensor at its mounting height: ``height`` when given, else the preset's for a car and
+        the seed's hand height for a walk."""
+        if self.height is not None:
+            return self.sensor.with_changes(height=self.height)
+        if self.motion == "handheld":
+            return self.sensor.with_changes(height=hand_height(self.seed))
+        return self.sensor
 
 
 class SynthSequence:
-    """A synthetic drive as a :class:`~vcr_odom.data.base.LidarSequence`, generated on demand.
+    """A synthetic drive or walk as a :class:`~vcr_odom.data.base.LidarSequence`, generated on demand.
 
     Built from a :class:`SynthConfig`, from its fields as keywords (``SynthSequence(frames=6,
     seed=2)``), or both (keywords change the given configuration). The defaults give the original
@@ -92,6 +150,11 @@ class SynthSequence:
     Frames are ray-cast in windows of ``window`` frames: each window gets one ray-casting scene of
     everything the sensor can reach from its poses, so memory and build time stay bounded for any
     length and a frame's content never depends on which frames were asked for before.
+
+    With ``keyframes`` the sequence is the kept frames of the generated stream (``frames`` counts the
+    stream, ``len()`` the kept ones; :attr:`kept` maps one to the other): a keyframe is the stream's
+    frame, its time the stream's time, its pose relative to the first keyframe (stream frame 0).
+    ``thin`` voxel-thins every frame returned.
     """
 
     def __init__(self, config: SynthConfig | None = None, /, **options: Any) -> None:
@@ -110,8 +173,10 @@ class SynthSequence:
         self.scene_style = config.scene
         self.stops = config.stops
         self.frame_period = config.frame_period
+        self.motion = config.motion
         extras = [config.scene] if config.scene != "suburban" else []
         extras += [self.sensor.name] if self.sensor.name != "hdl64" else []
+        extras += ["handheld"] if config.motion == "handheld" else []
         self.name = "-".join([f"synth-seed{config.seed}", *extras])
         self._simulators: dict[int, LidarSimulator] = {}
 
@@ -124,7 +189,7 @@ class SynthSequence:
         speeds = {"highway": (18.0, 28.0), "avenue": (8.0, 16.0), "oldtown": (3.0, 8.0)}
         # Drawn in this order (speed, sensor, height, stops): the same seed gives the same drive.
         speed = float(rng.uniform(*speeds.get(scene, (6.0, 14.0))))
-        sensor = str(rng.choice(SENSOR_MODELS))
+        sensor = str(rng.choice(SPINNING_MODELS))  # not SENSOR_MODELS: the same seeds, the same drives
         height = float(rng.uniform(*HEIGHT_RANGE))
         stops = scene != "highway" and bool(rng.random() < 0.5)
         return cls(
@@ -141,11 +206,21 @@ class SynthSequence:
     @cached_property
     def scene(self) -> StreetScene:
         # Road long enough for the fastest possible drive plus what the sensor sees beyond its end.
-        reach = self.frames * self.frame_period * self.speed * 1.5 + self.sensor.max_range + 60.0
+        fastest = self.speed * 1.5 if self.motion == "car" else MAX_SPEED
+        reach = self.frames * self.frame_period * fastest + self.sensor.max_range + 60.0
         return StreetScene(self.seed, reach, scene=self.scene_style)
 
     @cached_property
     def drive(self) -> Drive:
+        """The generated stream's motion: every frame, kept or not."""
+        if self.motion == "handheld":
+            return make_walk(
+                self.scene,
+                frames=self.frames,
+                height=self.sensor.height,
+                seed=self.seed,
+                frame_period=self.frame_period,
+            )
         return make_drive(
             self.scene,
             frames=self.frames,
@@ -156,13 +231,22 @@ class SynthSequence:
             frame_period=self.frame_period,
         )
 
+    @cached_property
+    def kept(self) -> NDArray[np.int64]:
+        """Indices into the generated stream of the frames this sequence is made of."""
+        if self.config.keyframes is None:
+            return np.arange(self.frames)
+        return select_keyframes(self.drive.world_poses, self.config.keyframes, self.config.keyframe_angle)
+
     def __len__(self) -> int:
-        return self.frames
+        return len(self.kept)
 
     @property
     def world_poses(self) -> NDArray[np.float64]:
-        """LiDAR -> world poses of the procedural world (not re-anchored)."""
-        return self.drive.world_poses
+        """LiDAR -> world poses of the procedural world (not re-anchored), of the kept frames."""
+        if self.config.keyframes is None:
+            return self.drive.world_poses
+        return self.drive.world_poses[self.kept]
 
     @cached_property
     def _relative_poses(self) -> NDArray[np.float64]:
@@ -175,7 +259,12 @@ class SynthSequence:
 
     @property
     def timestamps(self) -> NDArray[np.float64]:
-        return np.arange(self.frames) * self.frame_period
+        """Seconds since the first frame, on the generated stream's clock."""
+        return (
+            self.kept * self.frame_period
+            if self.config.keyframes is not None
+            else (np.arange(self.frames) * self.frame_period)
+        )
 
     @property
     def timestamps_assumed(self) -> bool:
@@ -188,15 +277,19 @@ class SynthSequence:
 
     @property
     def length(self) -> float:
-        """Length of the drive in metres."""
+        """Length of the drive (or walk) in metres, over every generated frame."""
         return self.drive.length
 
     def frame(self, index: int) -> NDArray[np.float32]:
-        """Ray-cast frame ``index``: float32 ``(N, 4)`` in the LiDAR frame, like a KITTI ``.bin``."""
-        if not 0 <= index < self.frames:
-            raise IndexError(f"frame {index} out of range for a sequence of {self.frames} frames")
-        simulator = self._simulator(index // self.window)
-        return simulator.scan(self.world_poses[index], np.random.default_rng([self.seed, 5, index]))
+        """Ray-cast frame ``index``: float32 ``(N, 4)`` in the LiDAR frame, like a KITTI ``.bin``.
+
+        A keyframe is the generated stream's frame (same scan noise), thinned when ``thin`` is set."""
+        if not 0 <= index < len(self):
+            raise IndexError(f"frame {index} out of range for a sequence of {len(self)} frames")
+        stream = int(self.kept[index])
+        simulator = self._simulator(stream // self.window)
+        points = simulator.scan(self.drive.world_poses[stream], np.random.default_rng([self.seed, 5, stream]))
+        return points if self.config.thin is None else thin_voxels(points, self.config.thin)
 
     def frame_and_pose(self, index: int) -> tuple[NDArray[np.float32], NDArray[np.float64]]:
         """A frame and its LiDAR-frame ground-truth pose (frame 0 = identity), without writing."""
@@ -205,7 +298,7 @@ class SynthSequence:
     def _simulator(self, window: int) -> LidarSimulator:
         if window not in self._simulators:
             self._simulators.clear()  # one window at a time keeps memory flat
-            poses = self.world_poses[window * self.window : (window + 1) * self.window]
+            poses = self.drive.world_poses[window * self.window : (window + 1) * self.window]
             mesh = self.scene.mesh_near(poses[:, :2, 3], self.sensor.max_range + 1.0)
             self._simulators[window] = LidarSimulator(mesh, self.sensor)
         return self._simulators[window]
