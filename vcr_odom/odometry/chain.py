@@ -62,13 +62,22 @@ class Step:
 
 @dataclass(frozen=True)
 class DoubtRule:
-    """When the prior's result is not taken on trust: on a run's first pair (no motion history), when
-    its motion is implausible, or when it fits worse than ``ratio`` times the median fit of the last
-    ``window`` results that were. A wrong result fits the other scan markedly worse than the ones
-    before it, while the fit itself varies by sensor and scene: hence a ratio to the run's own history."""
+    """When the prior's result is not taken on trust.
+
+    - On a run's first pair (no motion history), and when its motion is implausible.
+    - When it fits worse than ``ratio`` times the median fit of the last ``window`` results that were:
+      a wrong result fits the other scan markedly worse than the ones before it, while the fit itself
+      varies by sensor and scene, hence a ratio to the run's own history.
+    - When the local method had to move more than ``correction_m`` or ``correction_deg`` from the
+      motion prior to get there (0 turns a check off): the prior started outside the local method's
+      basin, where a wrong minimum can fit as well as the right one (a quiet failure the fit misses:
+      a sudden turn, a narrow field of view).
+    """
 
     ratio: float = 0.8
     window: int = 20
+    correction_m: float = 0.0
+    correction_deg: float = 0.0
 
 
 class Odometry:
@@ -227,6 +236,9 @@ class Odometry:
         median = statistics.median(self._fits)
         if attempt.fit < self.doubt.ratio * median:
             return f"poor fit {attempt.fit:.2f} (median {median:.2f})"
+        moved_m, turned_deg = attempt.correction
+        if 0.0 < self.doubt.correction_m < moved_m or 0.0 < self.doubt.correction_deg < turned_deg:
+            return f"far from the prior: {moved_m:.2f} m, {turned_deg:.1f} deg"
         return None
 
     def _checked(self, result: RegistrationResult, seconds: float) -> tuple[Transform, dict[str, Any]]:

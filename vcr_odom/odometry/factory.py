@@ -8,7 +8,7 @@ from __future__ import annotations
 from typing import Any
 
 from vcr_odom.errors import ConfigError
-from vcr_odom.odometry.chain import Consult, Odometry
+from vcr_odom.odometry.chain import Consult, DoubtRule, Odometry
 from vcr_odom.odometry.limits import InitialGuess, MotionLimits
 from vcr_odom.odometry.polish import POLISHES, make_polish
 from vcr_odom.registration import METHOD_NAMES, make_method
@@ -74,20 +74,27 @@ def build_odometry(
     limits: MotionLimits | None = None,
     polish_options: dict[str, Any] | None = None,
     consult: Consult = DEFAULT_CONSULT,
+    doubt: DoubtRule | None = None,
     **method_options: Any,
 ) -> Odometry | SequentialOdometry:
     """The odometry called ``spec`` (``name`` or ``name+polish``; see :func:`parse_method_spec`).
 
     ``method_options`` go to the registration method (e.g. ``weights=``, ``device=``, ``passes=`` for
     VCR-Net), ``polish_options`` to the polish (e.g. ``second_start=False``); ``consult``: when a
-    polished method asks its registrar (:data:`~vcr_odom.odometry.chain.CONSULT_CHOICES`).
+    polished method asks its registrar (:data:`~vcr_odom.odometry.chain.CONSULT_CHOICES`); ``doubt``:
+    when ``on-doubt`` asks (default :class:`~vcr_odom.odometry.chain.DoubtRule`).
     """
     name, polish_name = parse_method_spec(spec)
     method = make_method(name, **registrar_options(name, polish_name != "none", method_options))
     if isinstance(method, Registrar):
         polish = make_polish(polish_name, **(polish_options or {}))
         odometry = Odometry(
-            method, polish, initial_guess=InitialGuess(initial_guess), limits=limits, consult=consult
+            method,
+            polish,
+            initial_guess=InitialGuess(initial_guess),
+            limits=limits,
+            consult=consult,
+            doubt=doubt,
         )
         odometry.name = canonical_spec(spec)
         return odometry

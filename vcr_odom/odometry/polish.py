@@ -25,6 +25,7 @@ from vcr_odom.odometry.guided_kiss import (
     KissFrame,
     KissFramePreparer,
     frame_to_frame_fit,
+    motion_difference,
     within_basin,
 )
 from vcr_odom.registration.base import RegistrationResult
@@ -60,6 +61,9 @@ class PriorAttempt:
     motion: Transform
     fit: float
     state: Any = None
+    correction: tuple[float, float] = (0.0, 0.0)
+    """How far the local method moved from its start (m, deg): a start outside its basin may have
+    slid into a wrong minimum that still fits well."""
 
 
 class Polish(Protocol):
@@ -140,7 +144,8 @@ class IcpPolish:
     ) -> PriorAttempt:
         """ICP from the last motion; ``fit`` is ICP's fitness (share of points with a partner)."""
         result = self.icp.register(frame, previous, last_motion)
-        return PriorAttempt(np.asarray(result.transform, dtype=np.float64), float(result.fitness), result)
+        motion = np.asarray(result.transform, dtype=np.float64)
+        return PriorAttempt(motion, float(result.fitness), result, motion_difference(last_motion, motion))
 
     def finish(
         self, attempt: PriorAttempt, frame: Any, previous: Any, coarse: Transform | None, *, pose: Transform
@@ -231,7 +236,7 @@ class KissIcpPolish:
         assert attempt.pose is not None
         motion = invert(pose) @ attempt.pose
         fit = frame_to_frame_fit(attempt.source, motion, previous, self.config.mapping.voxel_size)
-        return PriorAttempt(motion, fit, attempt)
+        return PriorAttempt(motion, fit, attempt, motion_difference(attempt.prediction, attempt.pose))
 
     def finish(
         self,
