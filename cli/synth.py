@@ -45,7 +45,9 @@ def _check_seq(ctx: click.Context, param: click.Parameter, value: str) -> str:
     type=click.Choice(SENSOR_MODELS),
     default="hdl64",
     show_default=True,
-    help="LiDAR model: hdl64 (KITTI's HDL-64E), hdl32 (HDL-32E), vlp16 (VLP-16), os128 (Ouster OS1-128).",
+    help="LiDAR model: hdl64 (KITTI's HDL-64E), hdl32 (HDL-32E), vlp16 (VLP-16), os128 (Ouster OS1-128), "
+    "avia (Livox Avia-like forward rosette, 70x77 deg), mid360 (Livox Mid-360-like, 360x59 deg); "
+    "avia and mid360 scan non-repetitive patterns.",
 )
 @click.option(
     "--height",

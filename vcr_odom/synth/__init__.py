@@ -1,5 +1,6 @@
 """Synthetic LiDAR sequences (``vcr-odom synth``): a car drives through a procedural street and a
-spinning LiDAR ray-casts it; the result is written in the KITTI odometry layout.
+LiDAR ray-casts it (spinning, or a Livox-like solid-state scanner); the result is written in the
+KITTI odometry layout.
 
 It is the built-in data set of ``vcr-odom`` (demo, tests, training): ground truth is exact, any length
 is available, and the same seed always gives byte-identical files. For variety in training data the
