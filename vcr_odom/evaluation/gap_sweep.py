@@ -146,7 +146,8 @@ def length_ratios(estimates: NDArray[np.float64], truths: NDArray[np.float64]) -
 # ------------------------------------------------------------------------------------------ the run
 
 
-def _check_names(registrars: Sequence[Registrar]) -> list[str]:
+def check_names(registrars: Sequence[Registrar]) -> list[str]:
+    """The registrars' names; a ConfigError when there is none or two share a name (rows are keyed by it)."""
     names = [str(r.name) for r in registrars]
     if not names:
         raise ConfigError("--method: name at least one method")
@@ -177,13 +178,14 @@ def prepare_frames(
     return prepared, times_ms
 
 
-def _register_pairs(
+def register_pairs(
     registrar: Registrar,
     prepared: dict[int, Any],
     pairs: Sequence[tuple[int, int]],
     tick: Callable[[], None],
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], int]:
-    """Estimates ``(M, 4, 4)``, register ms per pair, and how many gave no finite estimate."""
+    """Each ``(target, source)`` pair registered with no initial guess: estimates ``(M, 4, 4)``,
+    register ms per pair, and how many gave no finite estimate (counted as the identity)."""
     estimates = np.empty((len(pairs), 4, 4), dtype=np.float64)
     times_ms = np.empty(len(pairs), dtype=np.float64)
     failed = 0
@@ -250,7 +252,7 @@ def run_gap_sweep(
 
     ``registrars`` are ready objects (``make_method`` builds them by name) with distinct names; rows
     come method by method, gaps in the given order. Needs the sequence's ground-truth poses."""
-    names = _check_names(registrars)
+    names = check_names(registrars)
     frames = sorted({int(f) for f in frames})
     gaps = check_gaps(frames, gaps)
     gt = sequence.gt_poses
@@ -274,7 +276,7 @@ def run_gap_sweep(
     for k, (name, registrar) in enumerate(zip(names, registrars, strict=True)):
         for gap, pairs in pairs_by_gap.items():
             truths = true_motions(gt, pairs)
-            estimates, register_ms, failed = _register_pairs(registrar, prepared[k], pairs, tick)
+            estimates, register_ms, failed = register_pairs(registrar, prepared[k], pairs, tick)
             thresholds = (rot_threshold_deg, trans_threshold_m)
             rows.append(
                 _row(name, gap, pairs, truths, estimates, register_ms, prepare_ms[k], failed, thresholds)
