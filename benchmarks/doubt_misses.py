@@ -4,11 +4,13 @@ A *miss* is a frame where the polished motion of ``METHOD@every-frame`` differs 
 run's by more than 0.2 m or 1 deg (the issue's definition); every-frame is the reference because it
 polishes from the network's start as well as the prior's on every pair. Each doubt rule is a
 ``--variant NAME=field:value,...`` of :class:`vcr_odom.odometry.chain.DoubtRule` fields (``shipped``
-is the default rule as it ships). Not a test: run
+is the default rule as it ships); ``--baseline SPEC`` adds other methods' rows (accuracy and
+speed only). Not a test: run
 
     .venv/bin/python benchmarks/doubt_misses.py --sequence ../shared/data/kitti-sample/sequences/00 \
         --sequence runs/synth/sequences/101 [--frames A:B] [--stride K] [--method vcr+kiss-icp] \
-        [--variant legacy=correction_m:0,correction_deg:0] [--json out.json]
+        [--variant fit-only=correction_m:0,correction_deg:0] [--baseline kiss-icp] [--json out.json] \
+        [--markdown table.md]
 
 Per sequence and rule it prints the share of frames that asked the network, the misses, the
 end-point drift and ATE against the ground truth, and frames/s in this process (indicative only:
@@ -72,8 +74,11 @@ def score(poses: np.ndarray, gt: np.ndarray | None) -> dict[str, float]:
     }
 
 
-def run_one(sequence: Any, indices: list[int], spec: str, consult: str, doubt: DoubtRule | None) -> dict:
-    method = build_odometry(spec, consult=consult, doubt=doubt)  # type: ignore[arg-type]
+def run_one(
+    sequence: Any, indices: list[int], spec: str, consult: str | None, doubt: DoubtRule | None
+) -> dict:
+    options: dict[str, Any] = {} if consult is None else {"consult": consult, "doubt": doubt}
+    method = build_odometry(spec, **options)
     run = run_odometry(sequence, method, indices)
     asked = [info.get("global", "every frame") != "not needed" for info in run.per_frame_info[1:]]
     return {
@@ -93,7 +98,10 @@ def main() -> None:
     parser.add_argument("--stride", type=int, default=1)
     parser.add_argument("--method", default="vcr+kiss-icp")
     parser.add_argument("--variant", action="append", default=[], help="NAME=field:value,... of DoubtRule")
+    parser.add_argument("--baseline", action="append", default=[], help="another method's row, e.g. kiss-icp")
     parser.add_argument("--json", type=Path)
+    parser.add_argument("--markdown", type=Path, help="also write the table here as markdown")
+    parser.add_argument("--label", default="", help="prefix of each row's sequence name (e.g. the stride)")
     args = parser.parse_args()
     variants = [("shipped", DoubtRule()), *map(parse_variant, args.variant)]
     table = Table(title=f"{args.method}: on-doubt rules against every-frame (stride {args.stride})")
@@ -110,30 +118,46 @@ def main() -> None:
         for name, rule in variants:
             result = run_one(sequence, indices, args.method, "on-doubt", rule)
             results.append((name, result, misses(reference["poses"], result["poses"])))
+        for spec in args.baseline:
+            results.append((spec, run_one(sequence, indices, spec, None, None), None))
         for name, result, missed in results:
             row = {
+                "label": args.label,
                 "sequence": str(folder),
                 "rule": name,
-                "asked_pct": result["asked_pct"],
-                "misses": len(missed),
-                "missed_frames": [indices[i] for i in missed],
+                "asked_pct": result["asked_pct"] if missed is not None else None,
+                "misses": len(missed) if missed is not None else None,
+                "missed_frames": [indices[i] for i in missed] if missed is not None else None,
                 "pairs": len(indices) - 1,
                 "fps": result["fps"],
                 **score(result["poses"], gt),
             }
             rows.append(row)
-            table.add_row(
-                folder.name if len(args.sequence) == 1 else str(folder),
-                name,
-                f"{row['asked_pct']:.1f}",
-                f"{row['misses']}/{row['pairs']}",
-                f"{row.get('end_point_pct', float('nan')):.2f}",
-                f"{row.get('ate_m', float('nan')):.3f}",
-                f"{row['fps']:.1f}",
-            )
+            table.add_row(*cells(row))
     Console().print(table)
     if args.json:
         args.json.write_text(json.dumps({"rows": rows}, indent=1))
+    if args.markdown:
+        header = [str(column.header) for column in table.columns]
+        lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+        lines += ["| " + " | ".join(cells(row)) + " |" for row in rows]
+        args.markdown.write_text("\n".join(lines) + "\n")
+
+
+def cells(row: dict[str, Any]) -> list[str]:
+    """One table row: the sequence folder as ``parent/name``, figures at the printed precision."""
+    folder = Path(row["sequence"])
+    on_doubt = row["misses"] is not None
+    name = f"{folder.parent.parent.name}/{folder.name}"
+    return [
+        f"{row['label']}: {name}" if row["label"] else name,
+        row["rule"],
+        f"{row['asked_pct']:.1f}" if on_doubt else "",
+        f"{row['misses']}/{row['pairs']}" if on_doubt else "",
+        f"{row.get('end_point_pct', float('nan')):.2f}",
+        f"{row.get('ate_m', float('nan')):.3f}",
+        f"{row['fps']:.1f}",
+    ]
 
 
 if __name__ == "__main__":

@@ -182,17 +182,19 @@ def test_an_assumed_frame_rate_only_flags_motions_it_calls_implausible() -> None
 
 
 @pytest.mark.parametrize("polish", [IcpPolish, KissIcpPolish])
-def test_a_prior_far_from_its_polished_result_is_doubted_where_the_rule_says(
+def test_a_prior_far_from_its_polished_result_is_doubted_by_default(
     synth: SynthSequence, polish: type
 ) -> None:
     """Frames 4 -> 6 after steps of one frame: the constant-velocity prior is a frame (~1 m) short and
     the polish finds the way, so its fit gives no doubt; the correction it needed does, when asked to."""
     indices = [0, 1, 2, 3, 4, 6, 7, 8]
-    trusting = run_odometry(synth, Odometry(IndexedOracle(synth), polish(), consult="on-doubt"), indices)
+    fit_only = DoubtRule(correction_m=0.0, correction_deg=0.0)
+    trusting = run_odometry(
+        synth, Odometry(IndexedOracle(synth), polish(), consult="on-doubt", doubt=fit_only), indices
+    )
     assert trusting.per_frame_info[5]["global"] == "not needed"
     oracle = IndexedOracle(synth)
-    rule = DoubtRule(correction_m=0.5, correction_deg=2.0)
-    doubting = run_odometry(synth, Odometry(oracle, polish(), consult="on-doubt", doubt=rule), indices)
+    doubting = run_odometry(synth, Odometry(oracle, polish(), consult="on-doubt"), indices)  # the default
     assert doubting.per_frame_info[5]["global"].startswith("far from the prior")
     assert (6, 4) in oracle.calls
     assert doubting.per_frame_info[7]["global"] == "not needed"  # steps of one frame again
