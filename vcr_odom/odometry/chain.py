@@ -73,7 +73,7 @@ class DoubtRule:
       which two starts end in one result (:data:`~vcr_odom.odometry.guided_kiss.BASIN_M`, ``BASIN_DEG``),
       where a wrong minimum can fit as well as the right one. The fit misses these quiet failures;
       keyframes saved by distance, whose spacing the constant-velocity prior cannot know, meet them
-      most (README "Robust by default" has the measurements). A car at 10 Hz stays well inside.
+      most (docs/benchmarks.md, "Robust by default", has the measurements). A car at 10 Hz stays well inside.
     """
 
     ratio: float = 0.8
