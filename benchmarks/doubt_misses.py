@@ -3,7 +3,7 @@
 A *miss* is a frame where the polished motion of ``METHOD@every-frame`` differs from the on-doubt
 run's by more than 0.2 m or 1 deg (the issue's definition); every-frame is the reference because it
 polishes from the network's start as well as the prior's on every pair. Each doubt rule is a
-``--variant NAME=field:value,...`` of :class:`vcr_odom.odometry.chain.DoubtRule` fields (``shipped``
+``--variant NAME=field:value,...`` of :class:`vcr_odom.odometry.chain.DoubtRule` fields (``default``
 is the default rule as it ships); ``--baseline SPEC`` adds other methods' rows (accuracy and
 speed only). Not a test: run
 
@@ -103,7 +103,7 @@ def main() -> None:
     parser.add_argument("--markdown", type=Path, help="also write the table here as markdown")
     parser.add_argument("--label", default="", help="prefix of each row's sequence name (e.g. the stride)")
     args = parser.parse_args()
-    variants = [("shipped", DoubtRule()), *map(parse_variant, args.variant)]
+    variants = [("default", DoubtRule()), *map(parse_variant, args.variant)]
     table = Table(title=f"{args.method}: on-doubt rules against every-frame (stride {args.stride})")
     for column in ("sequence", "rule", "asked %", "misses", "end-point %", "ATE m (SE3)", "frames/s"):
         table.add_column(column, justify="left" if column in ("sequence", "rule") else "right")
