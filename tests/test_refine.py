@@ -237,3 +237,20 @@ def test_the_polish_stops_earlier_than_kiss_icp_and_lands_where_kiss_icp_does() 
     ]
     difference = trajectory_pair_errors(poses[0], poses[1])
     assert 0 < difference.trans_errors_m.max() < 0.05
+
+
+def test_why_the_network_ran_is_counted_by_kind_of_reason() -> None:
+    """metrics.json's ``global_registration``: one count per kind, not one per figure in the reason."""
+    from vcr_odom.odometry.loop import OdometryRun
+    from vcr_odom.odometry.outputs import global_consultations
+
+    reasons = ["first pair", "not needed", "poor fit 0.51 (median 0.63)", "poor fit 0.40 (median 0.70)"]
+    reasons += ["far from the prior: 0.62 m, 3.1 deg", "far from the prior: 1.20 m, 0.4 deg", "not needed"]
+    run = OdometryRun("m", list(range(8)), np.zeros((8, 4, 4)), np.zeros(8), {}, 1.0)
+    run.per_frame_info = [{}] + [{"global": reason} for reason in reasons]
+    assert global_consultations(run) == {
+        "first pair": 1,
+        "not needed": 2,
+        "poor fit": 2,
+        "far from the prior": 2,
+    }

@@ -8,6 +8,7 @@ three always describe the same frames, whenever the run stops.
 
 from __future__ import annotations
 
+import re
 from collections import Counter
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -159,8 +160,16 @@ def run_summary(run: OdometryRun) -> dict[str, Any]:
 
 
 def global_consultations(run: OdometryRun) -> dict[str, int]:
-    """With ``consult="on-doubt"``: why the global registration ran (or ``not needed``), per frame count."""
-    return dict(Counter(info["global"] for info in run.per_frame_info if info.get("global")))
+    """With ``consult="on-doubt"``: why the global registration ran (or ``not needed``), per frame count,
+    by kind of reason (``poor fit``, ``far from the prior``, ...): the figures of each reason are per frame."""
+    return dict(Counter(reason_kind(info["global"]) for info in run.per_frame_info if info.get("global")))
+
+
+def reason_kind(reason: str) -> str:
+    """``"poor fit 0.51 (median 0.63)"`` -> ``"poor fit"``; ``"far from the prior: 0.6 m, 3 deg"`` ->
+    ``"far from the prior"``; a reason without figures is its own kind."""
+    head = reason.split(":")[0]
+    return re.sub(r"\s+[-\d.].*$", "", head).strip() or reason
 
 
 def polish_starts(run: OdometryRun) -> dict[str, int]:
