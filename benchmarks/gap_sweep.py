@@ -36,6 +36,16 @@ def parse_args() -> argparse.Namespace:
     parser.add_argument("--synth-frames", type=int, default=40, help="frames of the synthetic drive")
     parser.add_argument("--speed", type=float, default=10.0, help="synthetic drive speed [m/s]")
     parser.add_argument("--gap", type=int, action="append", help="frames apart (repeat; default 1 2 5 10 15)")
+    add_method_options(parser)
+    parser.add_argument("--json", type=Path, default=None, help="write every figure here (atomic)")
+    args = parser.parse_args()
+    if (args.data_root is None) == (args.synth is None):
+        parser.error("give exactly one of --data-root (KITTI layout) and --synth SEED")
+    return args
+
+
+def add_method_options(parser: argparse.ArgumentParser) -> None:
+    """The options :func:`build_methods` and :func:`set_threads` read (shared with revisit_pairs.py)."""
     parser.add_argument("--method", action="append", help="registration method (repeat; default vcr, fpfh)")
     parser.add_argument("--weights", type=Path, action="append", help="VCR weights, one row each (repeat)")
     parser.add_argument(
@@ -47,11 +57,6 @@ def parse_args() -> argparse.Namespace:
     parser.add_argument(
         "--threads", type=int, default=None, help="torch threads (default: $OMP_NUM_THREADS or 1)"
     )
-    parser.add_argument("--json", type=Path, default=None, help="write every figure here (atomic)")
-    args = parser.parse_args()
-    if (args.data_root is None) == (args.synth is None):
-        parser.error("give exactly one of --data-root (KITTI layout) and --synth SEED")
-    return args
 
 
 def set_threads(threads: int | None) -> int:

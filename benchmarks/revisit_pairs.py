@@ -22,7 +22,7 @@ import sys
 import warnings
 from pathlib import Path
 
-from gap_sweep import build_methods, progress_line, set_threads
+from gap_sweep import add_method_options, build_methods, progress_line, set_threads
 
 
 def parse_args() -> argparse.Namespace:
@@ -33,17 +33,7 @@ def parse_args() -> argparse.Namespace:
     parser.add_argument("--data-root", type=Path, required=True, help="root of the KITTI layout")
     parser.add_argument("--seq", action="append", help="sequence id (repeat to pool several; default 00)")
     parser.add_argument("--frames", default=None, help="A:B (B exclusive), the same for every --seq")
-    parser.add_argument("--method", action="append", help="registration method (repeat; default vcr, fpfh)")
-    parser.add_argument("--weights", type=Path, action="append", help="VCR weights, one row each (repeat)")
-    parser.add_argument(
-        "--vcr-passes", type=int, default=1, help="VCR-Net passes per pair (1: network alone)"
-    )
-    parser.add_argument(
-        "--device", default="auto", choices=["auto", "cpu", "cuda"], help="where VCR-Net runs"
-    )
-    parser.add_argument(
-        "--threads", type=int, default=None, help="torch threads (default: $OMP_NUM_THREADS or 1)"
-    )
+    add_method_options(parser)
     parser.add_argument("--min-m", type=float, default=3.0, help="least distance between the sensors [m]")
     parser.add_argument("--max-m", type=float, default=6.0, help="largest distance between the sensors [m]")
     parser.add_argument("--max-heading", type=float, default=90.0, help="largest yaw change [deg]")

@@ -238,6 +238,19 @@ def _row(
     )
 
 
+def pair_ticker(progress: Progress | None, total: int) -> Callable[[], None]:
+    """A callback that reports one more registered pair of ``total`` (to :func:`register_pairs`)."""
+    done = 0
+
+    def tick() -> None:
+        nonlocal done
+        done += 1
+        if progress is not None:
+            progress("registering pairs", done, total)
+
+    return tick
+
+
 def run_gap_sweep(
     sequence: LidarSequence,
     frames: Sequence[int],
@@ -263,14 +276,7 @@ def run_gap_sweep(
     used = sorted({f for pairs in pairs_by_gap.values() for pair in pairs for f in pair})
     prepared, prepare_ms = prepare_frames(sequence, used, registrars, progress)
 
-    total = len(registrars) * sum(len(p) for p in pairs_by_gap.values())
-    done = 0
-
-    def tick() -> None:
-        nonlocal done
-        done += 1
-        if progress is not None:
-            progress("registering pairs", done, total)
+    tick = pair_ticker(progress, len(registrars) * sum(len(p) for p in pairs_by_gap.values()))
 
     rows = []
     for k, (name, registrar) in enumerate(zip(names, registrars, strict=True)):

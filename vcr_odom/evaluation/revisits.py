@@ -40,6 +40,7 @@ from vcr_odom.errors import ConfigError
 from vcr_odom.evaluation.gap_sweep import (
     Progress,
     check_names,
+    pair_ticker,
     prepare_frames,
     register_pairs,
     true_motions,
@@ -377,13 +378,7 @@ def run_revisits(
     prepared, prepare_ms = prepare_frames(sequence, used, registrars, progress)
     truths = true_motions(gt, index_pairs)
 
-    total, done = len(registrars) * len(pairs), 0
-
-    def tick() -> None:
-        nonlocal done
-        done += 1
-        if progress is not None:
-            progress("registering pairs", done, total)
+    tick = pair_ticker(progress, len(registrars) * len(pairs))
 
     rows = []
     edges = options.heading_edges()
