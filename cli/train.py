@@ -33,7 +33,7 @@ S = TypeVar("S", bound=Settings)
 
 SOURCE = ("data_root", "seqs", "copies", "frames", "stride")
 DATA = ("caches", "protocols", "augment", "max_motion", "reverse", "val_fraction")
-TRAINING = ("epochs", "batch_size", "lr", "seed", "device", "out")
+TRAINING = ("epochs", "batch_size", "lr", "seed", "device", "out", "checkpoint_every")
 NAMES = {"seqs": "--seq", "caches": "--cache", "protocols": "--protocol"}
 EXTRA: dict[str, dict[str, Any]] = {
     "data_root": {"envvar": "VCR_ODOM_DATA_ROOT", "show_envvar": True},

@@ -44,6 +44,13 @@ class TrainConfig(Settings):
         Path("runs/train"), description="Checkpoints (last.pt), best.safetensors, history.json."
     )
     log_every: int = Field(10, ge=1, strict=True, description="Steps between progress events.")
+    checkpoint_every: int | None = Field(
+        None,
+        ge=1,
+        strict=True,
+        description="Also write last.pt every this many steps inside an epoch, so that a killed run "
+        "resumes mid-epoch (an epoch on 2 CPU cores can take hours); None = at epoch ends only.",
+    )
     select_on: Literal["loss", "rmse"] = Field(
         "loss",
         description="What picks best.safetensors: validation loss, or rotation RMSE / 1° + "

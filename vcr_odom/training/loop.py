@@ -7,13 +7,17 @@ RMSEs are only monitored) and :func:`pretrain` the encoder's triplet loss (Algor
 Why resume is exact: the checkpoint holds model, optimiser, scheduler, grad scaler, best score, history
 and every rank's RNG states, and each epoch's data order depends only on (seed, epoch) (a generator
 seeded per epoch, ``DistributedSampler.set_epoch``, the dataset's own ``set_epoch``), so an interrupted
-run continued with ``resume=True`` computes the same parameters as one that never stopped.
+run continued with ``resume=True`` computes the same parameters as one that never stopped. With
+``checkpoint_every`` the checkpoint is also written inside an epoch, with the steps done and the
+epoch's running sums; a resumed run skips those steps' batches (the same ones: the order is fixed).
 """
 
 from __future__ import annotations
 
+import itertools
 import math
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -21,7 +25,14 @@ import torch
 import torch.distributed as dist
 from torch import Tensor, nn
 from torch.nn.parallel import DistributedDataParallel
-from torch.utils.data import DataLoader, Dataset, DistributedSampler, RandomSampler, SequentialSampler
+from torch.utils.data import (
+    DataLoader,
+    Dataset,
+    DistributedSampler,
+    RandomSampler,
+    Sampler,
+    SequentialSampler,
+)
 
 from vcr_odom.errors import DataError
 from vcr_odom.model.config import VcrConfig
@@ -86,6 +97,8 @@ class Session:
     amp: bool
     amp_dtype: torch.dtype
     start_epoch: int = 0
+    start_step: int = 0
+    partial: dict[str, Any] = field(default_factory=dict)
     best_score: float = math.inf
     best_epoch: int = -1
     history: list[dict[str, Any]] = field(default_factory=list)
@@ -193,6 +206,10 @@ def _restore(session: Session, state: dict[str, Any]) -> None:
     session.scheduler.load_state_dict(state["scheduler"])
     session.scaler.load_state_dict(state["scaler"])
     session.start_epoch = state["epoch"] + 1
+    within = state.get("within_epoch")  # absent in checkpoints written at an epoch's end
+    if within is not None:
+        session.start_epoch, session.start_step = within["epoch"], within["step"]
+        session.partial = {"sums": dict(within["sums"]), "count": within["count"]}
     session.best_score, session.best_epoch = state["best_score"], state["best_epoch"]
     session.history = list(state["history"])
     rng = state["rng"]
@@ -224,24 +241,46 @@ def _end_epoch(
         if improved:
             metadata = {"task": task.name, **entry, "train_config": config.to_dict()}
             save_weights(out / "best.safetensors", session.net, session.model_config, metadata)
-        state = {
-            "task": task.name,
-            "epoch": epoch,
-            "model": session.net.state_dict(),
-            "optimiser": session.optimiser.state_dict(),
-            "scheduler": session.scheduler.state_dict(),
-            "scaler": session.scaler.state_dict(),
-            "rng": rng,
-            "best_score": session.best_score,
-            "best_epoch": session.best_epoch,
-            "history": session.history,
-            "model_config": session.model_config.to_dict(),
-            "train_config": config.to_dict(),
-        }
-        save_checkpoint(out / "last.pt", state)
+        save_checkpoint(out / "last.pt", _state(session, epoch, rng))
         write_json(out / "history.json", session.history)
         if progress is not None:
             progress(ProgressEvent("epoch", task.name, epoch, config.epochs, metrics=entry))
+    if session.ctx.world > 1:
+        dist.barrier()
+
+
+def _state(
+    session: Session, completed_epoch: int, rng: list[dict[str, Any]], within: dict[str, Any] | None = None
+) -> dict[str, Any]:
+    """What ``last.pt`` holds; ``within`` marks a checkpoint written inside the epoch after
+    ``completed_epoch`` (its steps done and running sums)."""
+    state = {
+        "task": session.task.name,
+        "epoch": completed_epoch,
+        "model": session.net.state_dict(),
+        "optimiser": session.optimiser.state_dict(),
+        "scheduler": session.scheduler.state_dict(),
+        "scaler": session.scaler.state_dict(),
+        "rng": rng,
+        "best_score": session.best_score,
+        "best_epoch": session.best_epoch,
+        "history": session.history,
+        "model_config": session.model_config.to_dict(),
+        "train_config": session.config.to_dict(),
+    }
+    if within is not None:
+        state["within_epoch"] = within
+    return state
+
+
+def _checkpoint_within_epoch(
+    session: Session, epoch: int, step: int, sums: dict[str, float], count: int
+) -> None:
+    rng = gather_rng_states(session.ctx)  # collective: every rank takes part
+    if session.ctx.main:
+        within = {"epoch": epoch, "step": step, "sums": dict(sums), "count": count}
+        session.config.out.mkdir(parents=True, exist_ok=True)
+        save_checkpoint(session.config.out / "last.pt", _state(session, epoch - 1, rng, within))
     if session.ctx.world > 1:
         dist.barrier()
 
@@ -252,10 +291,12 @@ def _train_epoch(
     config = session.config
     _set_epoch(dataset, epoch)
     session.module.train()
-    loader = _loader(dataset, config, epoch, shuffle=True, ctx=session.ctx)
-    sums: dict[str, float] = {}
-    count = 0
-    for step, batch in enumerate(loader, start=1):
+    skip = session.start_step if epoch == session.start_epoch else 0
+    loader = _loader(dataset, config, epoch, shuffle=True, ctx=session.ctx, skip_batches=skip)
+    steps = skip + len(loader)
+    sums: dict[str, float] = dict(session.partial.get("sums", {})) if skip else {}
+    count = session.partial.get("count", 0) if skip else 0
+    for step, batch in enumerate(loader, start=skip + 1):
         batch = _to_device(batch, session.device)
         with session.autocast():
             loss, metrics = session.task.loss(session.module, batch, config)
@@ -269,15 +310,12 @@ def _train_epoch(
         session.scaler.step(session.optimiser)
         session.scaler.update()
         count += _accumulate(sums, metrics, batch["source"].shape[0])
-        if (
-            progress is not None
-            and session.ctx.main
-            and (step % config.log_every == 0 or step == len(loader))
-        ):
+        every = config.checkpoint_every
+        if every is not None and step % every == 0 and step < steps:
+            _checkpoint_within_epoch(session, epoch, step, sums, count)
+        if progress is not None and session.ctx.main and (step % config.log_every == 0 or step == steps):
             running = {k: v / count for k, v in sums.items()}
-            progress(
-                ProgressEvent("step", session.task.name, epoch, config.epochs, step, len(loader), running)
-            )
+            progress(ProgressEvent("step", session.task.name, epoch, config.epochs, step, steps, running))
     return _finish(sums, count, session)
 
 
@@ -303,8 +341,16 @@ def _accumulate(sums: dict[str, float], metrics: dict[str, Tensor], size: int) -
     return size
 
 
-def _loader(dataset: Dataset, config: TrainConfig, epoch: int, shuffle: bool, ctx: DistContext) -> DataLoader:
-    """A loader whose order depends only on (seed, epoch), so a resumed epoch reads the same batches."""
+def _loader(
+    dataset: Dataset,
+    config: TrainConfig,
+    epoch: int,
+    shuffle: bool,
+    ctx: DistContext,
+    skip_batches: int = 0,
+) -> DataLoader:
+    """A loader whose order depends only on (seed, epoch), so a resumed epoch reads the same batches;
+    ``skip_batches`` leaves out the first ones (done before a mid-epoch checkpoint)."""
     generator = torch.Generator().manual_seed(config.seed * 1_000_003 + epoch)
     if ctx.world > 1:
         sampler: Any = DistributedSampler(dataset, ctx.world, ctx.rank, shuffle=shuffle, seed=config.seed)
@@ -313,6 +359,8 @@ def _loader(dataset: Dataset, config: TrainConfig, epoch: int, shuffle: bool, ct
         sampler = RandomSampler(dataset, generator=generator)
     else:
         sampler = SequentialSampler(dataset)
+    if skip_batches:
+        sampler = _SkipFirst(sampler, skip_batches * config.batch_size)
     return DataLoader(
         dataset,
         batch_size=config.batch_size,
@@ -322,6 +370,20 @@ def _loader(dataset: Dataset, config: TrainConfig, epoch: int, shuffle: bool, ct
         drop_last=False,
         persistent_workers=False,
     )
+
+
+class _SkipFirst(Sampler):
+    """``sampler``'s indices without the first ``count``. Lazy on purpose: the loader draws its base
+    seed from the shared generator before the sampler draws its permutation, as without skipping."""
+
+    def __init__(self, sampler: Sampler, count: int) -> None:
+        self.sampler, self.count = sampler, count
+
+    def __iter__(self) -> Iterator[int]:
+        return itertools.islice(iter(self.sampler), self.count, None)
+
+    def __len__(self) -> int:
+        return max(len(self.sampler) - self.count, 0)
 
 
 def _to_device(batch: dict[str, Any], device: torch.device) -> dict[str, Any]:
