@@ -145,6 +145,35 @@ def test_resume_equals_straight_training(tmp_path: Path) -> None:
     assert straight.history == resumed.history
 
 
+def test_a_run_killed_inside_an_epoch_resumes_from_its_last_step_checkpoint(tmp_path: Path) -> None:
+    """With ``checkpoint_every`` a run killed mid-epoch loses only the steps since the last step
+    checkpoint, and the resumed run ends with the parameters and history of one that never stopped."""
+    data, val = RandomPairs(8), RandomPairs(2, seed=1)
+    straight = train(TINY, data, val, _config(tmp_path / "a", epochs=2, batch_size=2))
+    steps_seen: list[tuple[int, int]] = []
+
+    def kill_at_epoch_1_step_3(event: ProgressEvent) -> None:
+        if event.kind == "step":
+            steps_seen.append((event.epoch, event.step))
+            if (event.epoch, event.step) == (1, 3):
+                raise KeyboardInterrupt
+
+    config = _config(tmp_path / "b", epochs=2, batch_size=2, checkpoint_every=2, log_every=1)
+    with pytest.raises(KeyboardInterrupt):
+        train(TINY, data, val, config, progress=kill_at_epoch_1_step_3)
+    torch.manual_seed(12345)
+    resumed_steps: list[tuple[int, int]] = []
+    resumed = train(
+        TINY, data, val, config, resume=True, progress=lambda e: resumed_steps.append((e.epoch, e.step))
+    )
+    assert [s for s in resumed_steps if s != (1, 0)] == [(1, 3), (1, 4)]  # steps 1-2 not run again
+    for (name, a), (_, b) in zip(
+        straight.model.state_dict().items(), resumed.model.state_dict().items(), strict=True
+    ):
+        assert torch.equal(a, b), name
+    assert straight.history == resumed.history
+
+
 def _resume(model_config: VcrConfig, tmp_path: Path, epochs: int) -> TrainResult:
     """``train`` resumed from the checkpoint in ``tmp_path``, with two random pairs."""
     return train(model_config, RandomPairs(2), RandomPairs(2), _config(tmp_path, epochs=epochs), resume=True)
@@ -258,6 +287,28 @@ def test_two_process_gloo_ddp_step(tmp_path: Path) -> None:
     assert any(not torch.allclose(v, initial[k], atol=1e-7) for k, v in rank0.items())  # DDP did train
     history = json.loads((tmp_path / "run" / "history.json").read_text())
     assert len(history) == 1  # one writer (rank 0), one epoch
+
+
+class _RunsCode:
+    """Pickles as a call to ``os.system``: what a hostile checkpoint would hold."""
+
+    def __reduce__(self) -> tuple[object, tuple[str]]:
+        import os
+
+        return (os.system, ("touch ran-code",))
+
+
+def test_resume_refuses_a_checkpoint_that_would_run_code(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    train(TINY, RandomPairs(2), RandomPairs(2), _config(tmp_path, epochs=1))
+    state = torch.load(tmp_path / "last.pt", weights_only=False)
+    state["history"] = [_RunsCode()]
+    torch.save(state, tmp_path / "last.pt")
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(DataError, match=r"last\.pt: refused: the checkpoint holds objects other than"):
+        train(TINY, RandomPairs(2), RandomPairs(2), _config(tmp_path, epochs=2), resume=True)
+    assert not (tmp_path / "ran-code").exists()
 
 
 def test_corrupt_checkpoint_is_a_data_error_naming_it(tmp_path: Path) -> None:

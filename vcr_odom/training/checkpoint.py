@@ -1,8 +1,9 @@
 """``last.pt``: the whole training state after an epoch, written atomically, checked when resumed.
 
 Why a pickle (torch.save) and not safetensors: optimiser and scheduler states and RNG states are nested
-Python objects. It is only ever read back by ``--resume`` of the run that wrote it; shipped weights are
-safetensors (``vcr_odom.model.weights``).
+Python objects. It is read back with ``weights_only=True`` (tensors, containers, numbers, strings and
+NumPy's RNG arrays only), so a checkpoint handed over by someone else cannot run code when resumed;
+shipped weights are safetensors (``vcr_odom.model.weights``).
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ import io
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 
 from vcr_odom.errors import ConfigError, DataError
@@ -18,6 +20,9 @@ from vcr_odom.io import atomic_write_bytes
 from vcr_odom.model.config import INFERENCE_FIELDS, VcrConfig
 
 CHECKPOINT_VERSION = 1
+NUMPY_RNG_GLOBALS = [np._core.multiarray._reconstruct, np.ndarray, np.dtype, type(np.dtype(np.uint32))]
+"""What ``np.random.get_state()`` pickles as, allowed beside the weights-only unpickler's own types."""
+ALLOWED_NAMES = {f"{g.__module__}.{g.__qualname__}" for g in NUMPY_RNG_GLOBALS}
 
 
 def save_checkpoint(path: Path, state: dict[str, Any]) -> Path:
@@ -42,7 +47,16 @@ def load_checkpoint(path: Path, task: str, model_config: VcrConfig) -> dict[str,
     if not path.is_file():
         raise DataError(f"cannot resume: no checkpoint at {path} (run once without --resume first)")
     try:
-        state = torch.load(path, map_location="cpu", weights_only=False)
+        unsafe = set(torch.serialization.get_unsafe_globals_in_checkpoint(path)) - ALLOWED_NAMES
+        if unsafe:  # never unpickled: refused by name
+            raise DataError(
+                f"{path}: refused: the checkpoint holds objects other than tensors and plain data "
+                f"({', '.join(sorted(unsafe))}; not written by vcr-odom, or tampered with)"
+            )
+        with torch.serialization.safe_globals(NUMPY_RNG_GLOBALS):
+            state = torch.load(path, map_location="cpu", weights_only=True)
+    except DataError:
+        raise
     except Exception as error:  # any unpickling failure: a bad file
         raise DataError(f"{path}: not a readable checkpoint (corrupt or truncated?): {error}") from error
     if not isinstance(state, dict) or state.get("version") != CHECKPOINT_VERSION:
