@@ -7,6 +7,7 @@ import click
 from vcr_odom.cli.compare import compare
 from vcr_odom.cli.demo import demo
 from vcr_odom.cli.evaluate import evaluate
+from vcr_odom.cli.map import map_command
 from vcr_odom.cli.options import FriendlyGroup
 from vcr_odom.cli.progress import EXIT_CODES_HELP, show_warnings_on_console
 from vcr_odom.cli.run import run
@@ -23,7 +24,7 @@ def cli() -> None:
     show_warnings_on_console()
 
 
-for command in (run, evaluate, compare, synth, demo, cache, pretrain_command, train_command):
+for command in (run, map_command, evaluate, compare, synth, demo, cache, pretrain_command, train_command):
     cli.add_command(command)
 
 if __name__ == "__main__":

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import os
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import matplotlib
@@ -36,8 +36,10 @@ def plot_trajectories(
     *,
     title: str = "",
     background_xy: NDArray[np.float64] | None = None,
+    links: Sequence[tuple[NDArray[np.float64], NDArray[np.float64]]] = (),
 ) -> Path:
-    """Top-down (x-y, LiDAR frame: x forward, y left) view of one or more trajectories over ground truth."""
+    """Top-down (x-y, LiDAR frame: x forward, y left) view of one or more trajectories over ground truth;
+    ``links`` are pairs of poses drawn as lines (loop closures)."""
     figure, axes = plt.subplots(figsize=(7, 7))
     if background_xy is not None and len(background_xy):
         axes.scatter(background_xy[:, 0], background_xy[:, 1], s=0.2, c="0.75", linewidths=0, label="map")
@@ -45,6 +47,9 @@ def plot_trajectories(
         axes.plot(ground_truth[:, 0, 3], ground_truth[:, 1, 3], "k--", lw=2, label="ground truth")
     for name, poses in trajectories.items():
         axes.plot(poses[:, 0, 3], poses[:, 1, 3], lw=1.5, label=name)
+    for number, (a, b) in enumerate(links):
+        label = f"loops ({len(links)})" if number == 0 else None
+        axes.plot([a[0, 3], b[0, 3]], [a[1, 3], b[1, 3]], "m-", lw=0.8, alpha=0.8, label=label)
     first = next(iter(trajectories.values()), ground_truth)
     if first is not None and len(first):
         axes.plot(first[0, 0, 3], first[0, 1, 3], "ko", ms=5)

@@ -87,6 +87,22 @@ def vcr_options(
     return {"weights": weights, "device": device, "passes": passes, "num_points": points}
 
 
+def method_for(settings: RunSettings) -> Odometry | SequentialOdometry:
+    """The odometry ``settings`` ask for (its weights loaded: a bad file fails here, before any folder)."""
+    return build_odometry(
+        settings.spec,
+        initial_guess=settings.initial_guess,
+        consult=settings.consult,
+        **vcr_options(
+            settings.method,
+            settings.weights,
+            settings.device,
+            settings.vcr_passes,
+            settings.vcr_points,
+        ),
+    )
+
+
 def run_sequence(settings: RunSettings, progress: ProgressFactory | None = None) -> RunOutcome:
     """Check everything, build the method, run it over the selected frames and write the result folder."""
     check_output_folder(settings.results_dir, "--results-dir")
@@ -95,18 +111,7 @@ def run_sequence(settings: RunSettings, progress: ProgressFactory | None = None)
     sequence = settings.selection.open()
     indices = settings.selection.indices(sequence)
     spec = settings.spec
-    odometry = build_odometry(
-        spec,
-        initial_guess=settings.initial_guess,
-        consult=settings.consult,
-        **vcr_options(
-            spec.partition("+")[0],
-            settings.weights,
-            settings.device,
-            settings.vcr_passes,
-            settings.vcr_points,
-        ),
-    )
+    odometry = method_for(settings)
     folder = create_result_folder(
         settings.results_dir,
         f"run_{sequence.name}_{spec}",

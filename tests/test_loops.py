@@ -1,0 +1,182 @@
+"""Loop closure: candidates, verification on real scans, the robust pose graph, the map command."""
+
+from __future__ import annotations
+
+import itertools
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from vcr_odom.cli.main import cli
+from vcr_odom.geometry import invert, make_transform, rotation_angle, rotation_from_euler_zyx
+from vcr_odom.loops.candidates import find_candidates
+from vcr_odom.loops.drift import DriftModel
+from vcr_odom.loops.graph import LoopEdge, correct_frames, optimise
+from vcr_odom.loops.nodes import Node
+
+EXACT = np.diag([1e4] * 3 + [1e2] * 3)
+
+
+def _node(k: int, pose: np.ndarray, path_m: float) -> Node:
+    empty = np.zeros((0, 3), np.float32)
+    return Node(position=k, frame_index=k, pose=pose, path_m=path_m, network_points=empty, cloud=empty)
+
+
+def _circle(count: int, radius: float, heading_drift_deg_per_node: float = 0.0) -> tuple[list, list]:
+    """True poses around a circle and odometry poses whose heading drifts a little at every step."""
+    truth, odometry = [np.eye(4)], [np.eye(4)]
+    step = make_transform(
+        rotation_from_euler_zyx(2 * math.pi / count, 0, 0), [2 * math.pi * radius / count, 0, 0]
+    )
+    drifted = make_transform(
+        rotation_from_euler_zyx(2 * math.pi / count + math.radians(heading_drift_deg_per_node), 0, 0),
+        step[:3, 3],
+    )
+    for _ in range(count + count // 4):  # a lap and a quarter
+        truth.append(truth[-1] @ step)
+        odometry.append(odometry[-1] @ drifted)
+    return truth, odometry
+
+
+def _nodes(poses: list) -> list[Node]:
+    path = np.concatenate(
+        [[0.0], np.cumsum([np.linalg.norm(b[:3, 3] - a[:3, 3]) for a, b in itertools.pairwise(poses)])]
+    )
+    return [_node(k, pose, float(path[k])) for k, pose in enumerate(poses)]
+
+
+def test_candidates_are_revisits_within_the_drift_and_none_on_a_street() -> None:
+    truth, odometry = _circle(60, 40.0, heading_drift_deg_per_node=0.05)
+    candidates = find_candidates(_nodes(odometry))
+    assert candidates, "a lap and a quarter revisits the start"
+    true_distances = []
+    for candidate in candidates:
+        assert candidate.source > 60 - 5 and candidate.target < candidate.source - 40
+        true_distances.append(np.linalg.norm(truth[candidate.source][:3, 3] - truth[candidate.target][:3, 3]))
+        assert true_distances[-1] < 5.0 + DriftModel().translation_bound(candidate.path_m)
+    assert min(true_distances) < 5.0
+    street = [make_transform(np.eye(3), [3.0 * k, 0, 0]) for k in range(200)]
+    assert find_candidates(_nodes(street)) == []
+
+
+def test_a_loop_pulls_a_drifted_circle_back_and_no_loop_changes_nothing() -> None:
+    truth, odometry = _circle(60, 40.0, heading_drift_deg_per_node=0.1)
+    nodes = _nodes(odometry)
+    unchanged = optimise(nodes, [])
+    assert np.array_equal(unchanged.node_poses, np.stack(odometry))
+    loops = [LoopEdge(j, j - 60, invert(truth[j - 60]) @ truth[j], EXACT) for j in range(60, 76, 3)]
+    result = optimise(nodes, loops)
+    error_before = np.linalg.norm(odometry[-1][:3, 3] - truth[-1][:3, 3])
+    error_after = np.linalg.norm(result.node_poses[-1][:3, 3] - truth[-1][:3, 3])
+    assert error_before > 3.0
+    assert error_after < error_before / 5
+    assert all(result.kept)
+
+
+def test_the_graph_drops_a_loop_that_disagrees_with_the_others() -> None:
+    truth, odometry = _circle(60, 40.0, heading_drift_deg_per_node=0.05)
+    nodes = _nodes(odometry)
+    true_loops = [LoopEdge(j, j - 60, invert(truth[j - 60]) @ truth[j], EXACT) for j in range(60, 76, 3)]
+    block_away = make_transform(np.eye(3), [30.0, 0, 0])  # a look-alike place one block further on
+    false_loop = LoopEdge(70, 20, block_away @ invert(truth[20]) @ truth[70], EXACT)
+    result = optimise(nodes, [*true_loops, false_loop])
+    assert result.kept == [True] * len(true_loops) + [False]
+    error = np.linalg.norm(result.node_poses[-1][:3, 3] - truth[-1][:3, 3])
+    assert error < np.linalg.norm(odometry[-1][:3, 3] - truth[-1][:3, 3]) / 5
+
+
+def test_frames_between_nodes_follow_their_nodes_smoothly() -> None:
+    frames = np.stack([make_transform(np.eye(3), [float(k), 0, 0]) for k in range(11)])
+    before = frames[[0, 10]]
+    after = before.copy()
+    after[1] = make_transform(rotation_from_euler_zyx(math.radians(10), 0, 0), [10.0, 2.0, 0])
+    corrected = correct_frames(frames, [0, 10], before, after)
+    assert np.allclose(corrected[0], frames[0]) and np.allclose(corrected[10], after[1])
+    steps = np.linalg.norm(np.diff(corrected[:, :3, 3], axis=0), axis=1)
+    assert steps.max() - steps.min() < 0.1  # no jump anywhere
+    turns = [math.degrees(rotation_angle(a[:3, :3].T @ b[:3, :3])) for a, b in itertools.pairwise(corrected)]
+    assert max(turns) == pytest.approx(1.0, abs=1e-6)
+
+
+def test_drift_bounds_grow_with_the_path() -> None:
+    drift = DriftModel()
+    assert drift.translation_bound(0) == drift.translation_floor_m
+    assert drift.translation_bound(1000) == pytest.approx(drift.translation_floor_m + 30.0)
+    assert drift.translation_bound(200) < 30.0  # a block away is never within the drift of a short loop
+
+
+@pytest.fixture(scope="module")
+def sample_nodes(kitti_sample_root: Path) -> tuple[list[Node], np.ndarray]:
+    """Nodes of real frames 0 and 6 (about 5 m apart) and their true relative pose."""
+    from vcr_odom.data.kitti import KittiSequence
+    from vcr_odom.loops.nodes import NodeRecorder
+    from vcr_odom.registration.vcr import VcrRegistrar
+
+    sequence = KittiSequence(kitti_sample_root, "00")
+    network = VcrRegistrar(device="cpu")
+    recorder = NodeRecorder(network.network_input, spacing_m=1e-6)
+    for index in (0, 6):
+        recorder(index, sequence.gt_poses[index], sequence.frame(index))
+    nodes = recorder.finish()
+    return nodes, invert(sequence.gt_poses[0]) @ sequence.gt_poses[6]
+
+
+def _candidate(truth: np.ndarray, error: np.ndarray, path_m: float):
+    from vcr_odom.loops.candidates import LoopCandidate
+
+    prior = error @ truth
+    return LoopCandidate(1, 0, prior, path_m, float(np.linalg.norm(prior[:3, 3])))
+
+
+def test_a_revisit_is_registered_without_the_odometry_and_accepted(sample_nodes) -> None:
+    from vcr_odom.loops.verify import LoopVerifier
+    from vcr_odom.registration.vcr import VcrRegistrar
+
+    nodes, truth = sample_nodes
+    drifted = make_transform(rotation_from_euler_zyx(math.radians(4), 0, 0), [1.5, -1.0, 0.2])
+    decision = LoopVerifier(VcrRegistrar(device="cpu")).verify(_candidate(truth, drifted, 150.0), nodes)
+    assert decision.accepted, decision.reason
+    error = invert(truth) @ decision.measured
+    assert np.linalg.norm(error[:3, 3]) < 0.2
+    assert math.degrees(rotation_angle(error[:3, :3])) < 0.5
+    assert decision.information is not None and np.all(np.linalg.eigvalsh(decision.information) > 0)
+
+
+def test_a_look_alike_a_block_away_is_rejected_as_beyond_the_drift(sample_nodes) -> None:
+    """The same two scans, but the odometry puts them 30 m apart after 60 m of driving: the fit is
+    perfect, and only the drift bound can say that it is not this place."""
+    from vcr_odom.loops.verify import LoopVerifier
+    from vcr_odom.registration.vcr import VcrRegistrar
+
+    nodes, truth = sample_nodes
+    block = make_transform(np.eye(3), [30.0, 0.0, 0.0])
+    decision = LoopVerifier(VcrRegistrar(device="cpu")).verify(_candidate(truth, block, 60.0), nodes)
+    assert not decision.accepted
+    assert decision.reason.startswith(("rejected: asks the odometry", "rejected: overlap")), decision.reason
+
+
+def test_map_without_revisits_keeps_the_odometry_and_writes_every_file(
+    small_synthetic_root: Path, tmp_path: Path
+) -> None:
+    result = CliRunner().invoke(
+        cli,
+        ["map", "--data-root", str(small_synthetic_root), "--seq", "00", "--results-dir", str(tmp_path)],
+    )
+    assert result.exit_code == 0, result.output
+    (folder,) = [p for p in tmp_path.iterdir() if p.name.startswith("20")]
+    for name in ("trajectory_kitti.txt", "trajectory_tum.txt", "odometry_kitti.txt", "loops.json", "map.ply"):
+        assert (folder / name).is_file(), name
+    assert np.array_equal(
+        np.loadtxt(folder / "trajectory_kitti.txt"), np.loadtxt(folder / "odometry_kitti.txt")
+    )
+    loops = json.loads((folder / "loops.json").read_text())
+    assert loops["candidates"] == [] and loops["nodes"][0]["frame"] == 0
+    marker = json.loads((folder / "result.json").read_text())
+    assert marker["status"] == "complete" and marker["frames_done"] == 8
+    metrics = json.loads((folder / "metrics.json").read_text())
+    assert metrics["loops"]["accepted"] == 0 and metrics["memory"]["nodes"] == len(loops["nodes"])
+    assert metrics["odometry"]["ate_rpe"] == metrics["ate_rpe"]

@@ -1,0 +1,67 @@
+"""Where to look for loops: places the odometry says it came back to, within its own uncertainty.
+
+Each node is compared with the nodes driven at least ``min_loop_path_m`` before it; the nearest one
+by odometry position is a candidate when it lies within ``revisit_radius_m`` plus the drift the
+odometry may have gathered between the two visits (:class:`DriftModel`). One candidate every
+``attempt_spacing_m`` of path at most: a revisit is a passage of many nodes, a few loops along it
+pin it, and each candidate costs a registration.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from vcr_odom.geometry import Transform, invert
+from vcr_odom.loops.drift import DriftModel
+from vcr_odom.loops.nodes import Node
+
+REVISIT_RADIUS_M = 5.0
+MIN_LOOP_PATH_M = 30.0
+ATTEMPT_SPACING_M = 6.0
+
+
+@dataclass(frozen=True)
+class LoopCandidate:
+    """Node ``source`` (the later visit) against node ``target`` (the earlier one); ``prior`` is the
+    odometry's ``T_target_source``, ``path_m`` the distance driven between them."""
+
+    source: int
+    target: int
+    prior: Transform
+    path_m: float
+    distance_m: float
+
+
+def find_candidates(
+    nodes: list[Node],
+    drift: DriftModel | None = None,
+    revisit_radius_m: float = REVISIT_RADIUS_M,
+    min_loop_path_m: float = MIN_LOOP_PATH_M,
+    attempt_spacing_m: float = ATTEMPT_SPACING_M,
+) -> list[LoopCandidate]:
+    """The candidates in the order of the later visit (see the module doc)."""
+    drift = drift or DriftModel()
+    if len(nodes) < 2:
+        return []
+    positions = np.stack([node.pose[:3, 3] for node in nodes])
+    path = np.array([node.path_m for node in nodes])
+    candidates: list[LoopCandidate] = []
+    last_attempt = -np.inf
+    for j, node in enumerate(nodes):
+        if node.path_m - last_attempt < attempt_spacing_m:
+            continue
+        earlier = np.flatnonzero(path <= node.path_m - min_loop_path_m)
+        if len(earlier) == 0:
+            continue
+        distances = np.linalg.norm(positions[earlier] - positions[j], axis=1)
+        best = int(np.argmin(distances))
+        i = int(earlier[best])
+        travelled = float(node.path_m - path[i])
+        if distances[best] > revisit_radius_m + drift.translation_bound(travelled):
+            continue
+        prior = invert(nodes[i].pose) @ node.pose
+        candidates.append(LoopCandidate(j, i, prior, travelled, float(distances[best])))
+        last_attempt = node.path_m
+    return candidates

@@ -1,0 +1,119 @@
+"""Keyframe nodes of the pose graph, recorded while the odometry runs, with what loop closure needs
+of each: its odometry pose, the path driven to it, the network's input and a coarse cloud.
+
+Why record during the odometry: every frame is read once (a recording may not seek cheaply), and a
+node keeps ~100 KB (1,024 network points and a 1 m voxel cloud), so memory grows with the path
+driven, not with every scan.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import open3d as o3d
+from numpy.typing import NDArray
+
+from vcr_odom.data.base import Points
+from vcr_odom.geometry import Transform, invert, rotation_angle
+from vcr_odom.preprocess import crop_range
+
+NODE_SPACING_M = 3.0
+NODE_SPACING_DEG = 20.0
+"""A new node where the sensor moved this far or turned this much since the last one."""
+CLOUD_VOXEL_M = 1.0
+CLOUD_MAX_RANGE_M = 60.0
+"""The node cloud kept for the polish: kiss-icp's voxel for a 100 m scanner, far points dropped."""
+
+
+@dataclass
+class Node:
+    """One keyframe: ``position`` in the run's frame list, ``pose`` the odometry's (frame 0 world),
+    ``path_m`` the distance driven from the first frame, ``network_points`` what VCR-Net is fed,
+    ``cloud`` the coarse voxel cloud (float32 xyz)."""
+
+    position: int
+    frame_index: int
+    pose: Transform
+    path_m: float
+    network_points: NDArray[np.float32]
+    cloud: NDArray[np.float32]
+
+    @property
+    def nbytes(self) -> int:
+        return int(self.network_points.nbytes + self.cloud.nbytes + self.pose.nbytes)
+
+
+def voxel_cloud(
+    points: Points, voxel: float = CLOUD_VOXEL_M, max_range: float = CLOUD_MAX_RANGE_M
+) -> NDArray:
+    """``points`` cropped to 1-``max_range`` m and voxel-down-sampled, as float32 xyz."""
+    cropped = crop_range(points, 1.0, max_range)
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(cropped[:, :3].astype(np.float64)))
+    return np.asarray(cloud.voxel_down_sample(voxel).points, dtype=np.float32)
+
+
+class NodeRecorder:
+    """The odometry's per-frame hook: keeps every frame's pose and makes a node of the frames that
+    moved or turned enough since the last node (the first frame always; :meth:`finish` adds the last).
+
+    ``network_input`` turns a raw frame into the network's points (VCR-Net's pre-processing).
+    """
+
+    def __init__(
+        self,
+        network_input: Callable[[Points], NDArray[np.float32]],
+        spacing_m: float = NODE_SPACING_M,
+        spacing_deg: float = NODE_SPACING_DEG,
+    ) -> None:
+        self.network_input = network_input
+        self.spacing_m = spacing_m
+        self.spacing_rad = math.radians(spacing_deg)
+        self.nodes: list[Node] = []
+        self.poses: list[Transform] = []
+        self.frame_indices: list[int] = []
+        self.path: list[float] = []
+        self._last_points: Points | None = None
+
+    def __call__(self, index: int, pose: Transform, points: Points) -> None:
+        pose = np.asarray(pose, dtype=np.float64)
+        step = 0.0 if not self.poses else float(np.linalg.norm(pose[:3, 3] - self.poses[-1][:3, 3]))
+        self.path.append((self.path[-1] if self.path else 0.0) + step)
+        self.poses.append(pose)
+        self.frame_indices.append(index)
+        if not self.nodes or self._far_from_last_node(pose):
+            self._add(len(self.poses) - 1, points)
+            self._last_points = None
+        else:
+            self._last_points = points
+
+    def finish(self) -> list[Node]:
+        """The nodes, the last frame among them (the graph then spans the whole run)."""
+        if self._last_points is not None:
+            self._add(len(self.poses) - 1, self._last_points)
+            self._last_points = None
+        return self.nodes
+
+    @property
+    def nbytes(self) -> int:
+        """Memory held by the nodes (the loop closure's state besides the trajectory)."""
+        return sum(node.nbytes for node in self.nodes)
+
+    def _far_from_last_node(self, pose: Transform) -> bool:
+        motion = invert(self.nodes[-1].pose) @ pose
+        moved = float(np.linalg.norm(motion[:3, 3]))
+        return moved >= self.spacing_m or float(rotation_angle(motion[:3, :3])) >= self.spacing_rad
+
+    def _add(self, position: int, points: Points) -> None:
+        self.nodes.append(
+            Node(
+                position=position,
+                frame_index=self.frame_indices[position],
+                pose=self.poses[position],
+                path_m=self.path[position],
+                network_points=self.network_input(points),
+                cloud=voxel_cloud(points),
+            )
+        )

@@ -1,0 +1,282 @@
+"""``vcr-odom map``: odometry, then loop closure and a pose graph, into a result folder like ``run``'s.
+
+Phases: the odometry (nodes recorded as it goes, checkpoints as in ``run``), candidates and their
+verification, the pose graph, and the map from the nodes' scans at the optimised poses. The folder is
+published as one unit at the end (``trajectory_*`` the optimised poses, ``odometry_*`` the odometry's,
+``loops.json``, ``map.ply``, ``metrics.json``, the plot); a run stopped after the odometry keeps the
+odometry's trajectory, marked partial with the reason.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import resource
+import sys
+import time
+from contextlib import nullcontext
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from pydantic import Field
+
+from vcr_odom.data.base import LidarSequence, Points
+from vcr_odom.geometry import Transform, lidar_to_camera_poses
+from vcr_odom.io import write_kitti_poses, write_tum_trajectory
+from vcr_odom.loops.candidates import (
+    ATTEMPT_SPACING_M,
+    MIN_LOOP_PATH_M,
+    REVISIT_RADIUS_M,
+    find_candidates,
+)
+from vcr_odom.loops.drift import DriftModel
+from vcr_odom.loops.graph import LoopEdge, correct_frames, optimise
+from vcr_odom.loops.nodes import NODE_SPACING_DEG, NODE_SPACING_M, Node, NodeRecorder
+from vcr_odom.loops.verify import LoopDecision, LoopVerifier
+from vcr_odom.mapping import VoxelMap
+from vcr_odom.metrics import EvaluationReport, evaluate
+from vcr_odom.odometry.loop import OdometryRun, run_odometry
+from vcr_odom.odometry.outputs import Checkpoints, ground_truth_for, run_summary, save_trajectory
+from vcr_odom.odometry.run import ProgressFactory, RunSettings, method_for
+from vcr_odom.plots import plot_trajectories
+from vcr_odom.registration.vcr import VcrRegistrar
+from vcr_odom.results import (
+    check_output_folder,
+    create_result_folder,
+    holds_trajectory,
+    interruption_reason,
+    point_latest_at,
+    remove_result_folder,
+    write_json,
+)
+
+
+class MapSettings(RunSettings):
+    """Everything ``vcr-odom map`` is told: ``run``'s options (without ``--save-map``: the map is
+    always written into the folder) and the loop closure's."""
+
+    node_spacing: float = Field(default=NODE_SPACING_M, gt=0, description="Metres between graph nodes.")
+    node_angle: float = Field(default=NODE_SPACING_DEG, gt=0, description="A turn that makes a node (deg).")
+    revisit_radius: float = Field(default=REVISIT_RADIUS_M, gt=0)
+    min_loop_path: float = Field(default=MIN_LOOP_PATH_M, gt=0)
+    attempt_spacing: float = Field(default=ATTEMPT_SPACING_M, ge=0)
+    loops: bool = Field(default=True, description="False: the odometry and its map only (a baseline).")
+
+
+@dataclass
+class MapOutcome:
+    folder: Path | None
+    sequence: LidarSequence
+    odometry: OdometryRun
+    poses: np.ndarray
+    decisions: list[LoopDecision]
+    report: EvaluationReport | None
+    odometry_report: EvaluationReport | None
+    seconds: dict[str, float]
+
+
+def map_sequence(settings: MapSettings, progress: ProgressFactory | None = None) -> MapOutcome:
+    """Check everything, run the odometry with a node recorder, close loops, optimise, write the folder."""
+    check_output_folder(settings.results_dir, "--results-dir")
+    sequence = settings.selection.open()
+    indices = settings.selection.indices(sequence)
+    odometry = method_for(settings)
+    network = VcrRegistrar(weights=settings.weights, device=settings.device, num_points=settings.vcr_points)
+    spec = settings.spec
+    folder = create_result_folder(
+        settings.results_dir,
+        f"map_{sequence.name}_{spec}",
+        {"command": "map", "sequence": sequence.name, **settings.to_dict()},
+        frames_selected=len(indices),
+    )
+    recorder = NodeRecorder(network.network_input, settings.node_spacing, settings.node_angle)
+    checkpoints = Checkpoints(
+        folder,
+        sequence,
+        len(indices),
+        method=f"{spec} (odometry)",
+        on_saved=lambda: point_latest_at(settings.results_dir, folder),
+    )
+    phase = _Phases(progress)
+    try:
+        with phase(f"{spec} on {sequence.name}", len(indices)) as advance:
+
+            def on_frame(index: int, pose: Transform, points: Points) -> None:
+                checkpoints(index, pose)
+                recorder(index, pose, points)
+                advance(index, pose)
+
+            run = run_odometry(sequence, odometry, indices, on_frame=on_frame)
+        phase.seconds["odometry"] = run.wall_seconds
+        if run.interrupted or not run.frame_indices:
+            checkpoints.save(
+                f"interrupted (Ctrl-C) during the odometry after {checkpoints.frames_done} of "
+                f"{len(indices)} frames: no loop closure"
+            )
+            if not run.frame_indices:
+                remove_result_folder(folder)
+                folder = None
+            return MapOutcome(folder, sequence, run, run.poses, [], None, None, phase.seconds)
+        nodes = recorder.finish()
+        decisions, poses = _close_loops(settings, network, nodes, run, phase)
+        voxel_map = _map_from_nodes(sequence, nodes, poses, settings.map_voxel, phase)
+    except BaseException as error:
+        checkpoints.save(f"{interruption_reason(error)} (after {checkpoints.frames_done} odometry frames)")
+        if folder is not None and not holds_trajectory(folder):
+            remove_result_folder(folder)
+        raise
+    gt = ground_truth_for(sequence, run.frame_indices)
+    report = evaluate(poses, gt) if gt is not None and len(poses) >= 2 else None
+    odometry_report = evaluate(run.poses, gt) if gt is not None and len(poses) >= 2 else None
+    mapped = dataclasses.replace(run, method=f"map {spec}", poses=poses)
+    memory = {
+        "frames": len(run.frame_indices),
+        "nodes": len(nodes),
+        "node_bytes": recorder.nbytes,
+        "map_points": len(voxel_map),
+        "peak_rss_bytes": _peak_rss_bytes(),
+    }
+
+    def extras(unit: Path) -> None:
+        _write_odometry(unit, run, sequence)
+        write_json(unit / "loops.json", _loops_json(decisions, nodes))
+        voxel_map.save(unit / "map.ply")
+        summary = _loop_summary(decisions)
+        write_json(
+            unit / "metrics.json",
+            {
+                "run": run_summary(run),
+                "loops": summary,
+                "seconds": phase.seconds,
+                "memory": memory,
+                **(report.to_dict() if report is not None else {"ground_truth": None}),
+                "odometry": odometry_report.to_dict() if odometry_report is not None else None,
+            },
+        )
+        accepted = _accepted(decisions)
+        plot_trajectories(
+            unit / "trajectory.png",
+            {f"map ({len(accepted)} loops)": poses, "odometry": run.poses},
+            gt,
+            title=f"{sequence.name}: {spec} + loop closure",
+            background_xy=voxel_map.top_down() if len(voxel_map) else None,
+            links=[
+                (poses[nodes[d.candidate.source].position], poses[nodes[d.candidate.target].position])
+                for d in accepted
+            ],
+        )
+
+    save_trajectory(folder, mapped, sequence, frames_selected=len(indices), extras=extras)
+    point_latest_at(settings.results_dir, folder)
+    return MapOutcome(folder, sequence, run, poses, decisions, report, odometry_report, phase.seconds)
+
+
+class _Phases:
+    """One progress bar per phase (or none) and each phase's wall time."""
+
+    def __init__(self, progress: ProgressFactory | None) -> None:
+        self.progress = progress
+        self.seconds: dict[str, float] = {}
+
+    def __call__(self, title: str, total: int) -> Any:
+        if self.progress is None:
+            return nullcontext(lambda *_: None)
+        return self.progress(title, total)
+
+
+def _accepted(decisions: list[LoopDecision]) -> list[LoopDecision]:
+    return [d for d in decisions if d.accepted]
+
+
+def _close_loops(
+    settings: MapSettings,
+    network: VcrRegistrar,
+    nodes: list[Node],
+    run: OdometryRun,
+    phase: _Phases,
+) -> tuple[list[LoopDecision], np.ndarray]:
+    """Candidates, verification and the graph: the decisions (a loop the graph dropped is no longer
+    accepted) and every frame's pose."""
+    drift = DriftModel()
+    started = time.perf_counter()
+    decisions: list[LoopDecision] = []
+    if settings.loops:
+        candidates = find_candidates(
+            nodes, drift, settings.revisit_radius, settings.min_loop_path, settings.attempt_spacing
+        )
+        verifier = LoopVerifier(network, drift)
+        with phase("loop candidates", len(candidates)) as advance:
+            for candidate in candidates:
+                decisions.append(verifier.verify(candidate, nodes))
+                advance(candidate.source, candidate.prior)
+    phase.seconds["loops"] = time.perf_counter() - started
+    started = time.perf_counter()
+    edges = [
+        LoopEdge(d.candidate.source, d.candidate.target, d.measured, d.information)
+        for d in _accepted(decisions)
+    ]
+    graph = optimise(nodes, edges, drift)
+    for decision, kept, weight in zip(_accepted(decisions), graph.kept, graph.weights, strict=True):
+        decision.scores["graph_weight"] = round(weight, 4)
+        if not kept:
+            decision.accepted = False
+            decision.reason = f"dropped: disagrees with the other loops (graph weight {weight:.2f})"
+    before = np.stack([node.pose for node in nodes])
+    if edges:
+        poses = correct_frames(run.poses, [n.position for n in nodes], before, graph.node_poses)
+    else:
+        poses = run.poses.copy()
+    phase.seconds["graph"] = time.perf_counter() - started
+    return decisions, poses
+
+
+def _map_from_nodes(
+    sequence: LidarSequence, nodes: list[Node], poses: np.ndarray, voxel: float, phase: _Phases
+) -> VoxelMap:
+    """The map from each node's scan at its optimised pose (read again, in order: a recording streams)."""
+    started = time.perf_counter()
+    voxel_map = VoxelMap(voxel_size=voxel)
+    with phase("map", len(nodes)) as advance:
+        for node in nodes:
+            voxel_map.add(sequence.frame(node.frame_index), poses[node.position])
+            advance(node.frame_index, poses[node.position])
+    phase.seconds["map"] = time.perf_counter() - started
+    return voxel_map
+
+
+def _write_odometry(unit: Path, run: OdometryRun, sequence: LidarSequence) -> None:
+    """``odometry_kitti.txt`` / ``odometry_tum.txt``: the odometry's poses, in the frame and format of
+    the trajectory files beside them."""
+    tr = sequence.tr_velo_to_cam
+    poses = run.poses if tr is None else lidar_to_camera_poses(run.poses, tr)
+    write_kitti_poses(unit / "odometry_kitti.txt", poses)
+    write_tum_trajectory(unit / "odometry_tum.txt", poses, run.timestamps)
+
+
+def _loops_json(decisions: list[LoopDecision], nodes: list[Node]) -> dict[str, Any]:
+    return {
+        "nodes": [
+            {"node": k, "frame": n.frame_index, "path_m": round(n.path_m, 3)} for k, n in enumerate(nodes)
+        ],
+        "candidates": [d.to_dict() for d in decisions],
+    }
+
+
+def _loop_summary(decisions: list[LoopDecision]) -> dict[str, Any]:
+    reasons: dict[str, int] = {}
+    for decision in decisions:
+        kind = decision.reason.split(":")[0] if not decision.accepted else "accepted"
+        if decision.reason.startswith("rejected:"):
+            kind = "rejected: " + decision.reason.split(":")[1].strip().split(" ")[0]
+        reasons[kind] = reasons.get(kind, 0) + 1
+    return {
+        "candidates": len(decisions),
+        "accepted": sum(d.accepted for d in decisions),
+        "by_outcome": reasons,
+    }
+
+
+def _peak_rss_bytes() -> int:
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return int(peak if sys.platform == "darwin" else peak * 1024)
