@@ -180,3 +180,25 @@ def test_map_without_revisits_keeps_the_odometry_and_writes_every_file(
     metrics = json.loads((folder / "metrics.json").read_text())
     assert metrics["loops"]["accepted"] == 0 and metrics["memory"]["nodes"] == len(loops["nodes"])
     assert metrics["odometry"]["ate_rpe"] == metrics["ate_rpe"]
+
+
+def test_map_interrupted_after_the_odometry_keeps_the_odometry_marked_partial(
+    small_synthetic_root: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import vcr_odom.loops.pipeline as pipeline
+
+    def ctrl_c(*_args: object) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(pipeline, "_map_from_nodes", ctrl_c)
+    result = CliRunner().invoke(
+        cli,
+        ["map", "--data-root", str(small_synthetic_root), "--seq", "00", "--results-dir", str(tmp_path)],
+    )
+    assert result.exit_code == 130, result.output
+    (folder,) = [p for p in tmp_path.iterdir() if p.name.startswith("20")]
+    marker = json.loads((folder / "result.json").read_text())
+    assert marker["status"] == "partial" and marker["frames_done"] == 8
+    assert "interrupted" in marker["reason"].lower()
+    assert len(np.loadtxt(folder / "trajectory_kitti.txt")) == 8
+    assert not (folder / "map.ply").exists()

@@ -1,0 +1,191 @@
+"""``vcr-odom map`` against its own odometry on sequences with ground truth: ATE, revisits closed,
+false closures, wall time and memory. Not a test: run
+
+    .venv/bin/python benchmarks/loop_closure.py --sequence runs/loops/synth/sequences/801 \
+        [--sequence ...] [--stride K] [--method vcr+kiss-icp] [--json out.json] [--markdown table.md]
+
+Per sequence:
+
+- **ATE** (origin-aligned, evo) of the odometry and of the map's optimised trajectory; their ratio.
+- **Revisits**: nodes whose true position lies within 5 m of a node driven at least ``--min-loop-path``
+  metres before (ground truth decides, not the odometry). They come in passages (consecutive revisit
+  nodes); a passage is closed when an accepted loop starts in it. Nodes within 10 m of path of an
+  accepted loop's source count as *covered*.
+- **False closures**: accepted loops whose two nodes truly lie more than 5 m apart, or whose
+  measured transform is more than 1 m / 3 deg off the true one.
+- **Time**: ``run`` (the odometry alone, same method, same process, its folder written) against
+  ``map`` (its folder written); **memory**: the nodes' bytes and the process's peak RSS.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from rich.console import Console
+from rich.table import Table
+
+from vcr_odom.data.selection import FrameSelection
+from vcr_odom.geometry import invert, rotation_angle
+from vcr_odom.loops.pipeline import MapOutcome, MapSettings, map_sequence
+from vcr_odom.metrics.evo_errors import ate_rpe
+from vcr_odom.odometry.outputs import ground_truth_for
+from vcr_odom.odometry.run import RunSettings, run_sequence
+
+TRUE_RADIUS_M = 5.0
+COVER_M = 10.0
+FALSE_M, FALSE_DEG = 1.0, 3.0
+
+
+def revisit_passages(
+    gt: np.ndarray, node_positions: list[int], node_paths: list[float], min_path: float
+) -> list[list[int]]:
+    """Runs of consecutive nodes (indices into the node list) that truly revisit an earlier place."""
+    xyz = gt[node_positions, :3, 3]
+    paths = np.asarray(node_paths)
+    revisiting = []
+    for j in range(len(node_positions)):
+        earlier = paths <= paths[j] - min_path
+        if earlier.any() and np.linalg.norm(xyz[earlier] - xyz[j], axis=1).min() <= TRUE_RADIUS_M:
+            revisiting.append(j)
+    passages: list[list[int]] = []
+    for j in revisiting:
+        if passages and j == passages[-1][-1] + 1:
+            passages[-1].append(j)
+        else:
+            passages.append([j])
+    return passages
+
+
+def score(
+    outcome: MapOutcome, settings: MapSettings, odometry_seconds: float, map_seconds: float
+) -> dict[str, Any]:
+    """The row of one sequence (see the module doc)."""
+    gt = ground_truth_for(outcome.sequence, outcome.odometry.frame_indices)
+    if gt is None:
+        raise SystemExit(f"{outcome.sequence.name}: no ground truth")
+    folder = outcome.folder
+    loops = json.loads((folder / "loops.json").read_text())
+    metrics = json.loads((folder / "metrics.json").read_text())
+    frame_position = {f: k for k, f in enumerate(outcome.odometry.frame_indices)}
+    nodes = [(frame_position[n["frame"]], n["path_m"]) for n in loops["nodes"]]
+    passages = revisit_passages(gt, [p for p, _ in nodes], [d for _, d in nodes], settings.min_loop_path)
+    accepted = [c for c in loops["candidates"] if c["accepted"]]
+    false = []
+    for loop in accepted:
+        a, b = frame_position[loop["source_frame"]], frame_position[loop["target_frame"]]
+        truth = invert(gt[b]) @ gt[a]
+        error = invert(truth) @ np.asarray(loop["measured_T_target_source"])
+        apart = float(np.linalg.norm(gt[a][:3, 3] - gt[b][:3, 3]))
+        if (
+            apart > TRUE_RADIUS_M + 1e-9
+            or np.linalg.norm(error[:3, 3]) > FALSE_M
+            or math.degrees(float(rotation_angle(error[:3, :3]))) > FALSE_DEG
+        ):
+            false.append(loop)
+    sources = {loop["source_node"] for loop in accepted}
+    closed = sum(any(j in sources for j in passage) for passage in passages)
+    node_paths = np.array([d for _, d in nodes])
+    source_paths = node_paths[sorted(sources)] if sources else np.zeros(0)
+    revisit_nodes = [j for passage in passages for j in passage]
+    covered = sum(
+        bool(len(source_paths)) and np.abs(source_paths - node_paths[j]).min() <= COVER_M
+        for j in revisit_nodes
+    )
+    odometry_ate = ate_rpe(outcome.odometry.poses, gt).ate_trans_rmse_m
+    map_ate = ate_rpe(outcome.poses, gt).ate_trans_rmse_m
+    return {
+        "sequence": outcome.sequence.name,
+        "frames": len(outcome.poses),
+        "path_m": round(float(node_paths[-1]), 1) if len(node_paths) else 0.0,
+        "odometry_ate_m": odometry_ate,
+        "map_ate_m": map_ate,
+        "ate_ratio": map_ate / odometry_ate if odometry_ate > 0 else float("nan"),
+        "revisit_passages": len(passages),
+        "passages_closed": closed,
+        "revisit_nodes": len(revisit_nodes),
+        "revisit_nodes_covered": int(covered),
+        "candidates": len(loops["candidates"]),
+        "accepted": len(accepted),
+        "false_closures": len(false),
+        "odometry_seconds": odometry_seconds,
+        "map_seconds": map_seconds,
+        "time_ratio": map_seconds / odometry_seconds,
+        "phase_seconds": outcome.seconds,
+        "nodes": metrics["memory"]["nodes"],
+        "node_mib": metrics["memory"]["node_bytes"] / 2**20,
+        "peak_rss_mib": metrics["memory"]["peak_rss_bytes"] / 2**20,
+        "folder": str(folder),
+    }
+
+
+COLUMNS = (
+    ("sequence", "sequence", "{}"),
+    ("frames", "frames", "{}"),
+    ("path [m]", "path_m", "{:.0f}"),
+    ("odometry ATE [m]", "odometry_ate_m", "{:.3f}"),
+    ("map ATE [m]", "map_ate_m", "{:.3f}"),
+    ("ratio", "ate_ratio", "{:.2f}"),
+    ("passages closed", None, None),
+    ("loops (false)", None, None),
+    ("time map/odometry", "time_ratio", "{:.2f}"),
+    ("node MiB / peak RSS MiB", None, None),
+)
+
+
+def cells(row: dict[str, Any]) -> list[str]:
+    out = []
+    for _, key, fmt in COLUMNS:
+        if key is not None:
+            out.append(fmt.format(row[key]))
+    out.insert(6, f"{row['passages_closed']}/{row['revisit_passages']}")
+    out.insert(7, f"{row['accepted']} ({row['false_closures']})")
+    out.append(f"{row['node_mib']:.1f} / {row['peak_rss_mib']:.0f}")
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--sequence", type=Path, action="append", required=True, help="sequences/<id> folder")
+    parser.add_argument("--stride", type=int, default=1)
+    parser.add_argument("--method", default="vcr")
+    parser.add_argument("--json", type=Path)
+    parser.add_argument("--markdown", type=Path)
+    args = parser.parse_args()
+    rows = []
+    with tempfile.TemporaryDirectory() as scratch:
+        for folder in args.sequence:
+            root, seq = folder.parent.parent, folder.name
+            selection = FrameSelection(data_root=root, seq=seq, stride=args.stride)
+            started = time.perf_counter()
+            run_sequence(RunSettings(selection=selection, method=args.method, results_dir=Path(scratch)))
+            odometry_seconds = time.perf_counter() - started
+            settings = MapSettings(selection=selection, method=args.method, results_dir=Path(scratch))
+            started = time.perf_counter()
+            outcome = map_sequence(settings)
+            map_seconds = time.perf_counter() - started
+            rows.append(score(outcome, settings, odometry_seconds, map_seconds))
+    table = Table(title="vcr-odom map against its odometry")
+    for header, _, _ in COLUMNS:
+        table.add_column(header)
+    for row in rows:
+        table.add_row(*cells(row))
+    Console().print(table)
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=1))
+    if args.markdown:
+        lines = ["| " + " | ".join(h for h, _, _ in COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
+        lines += ["| " + " | ".join(cells(row)) + " |" for row in rows]
+        args.markdown.write_text("\n".join(lines) + "\n")
+
+
+if __name__ == "__main__":
+    main()
