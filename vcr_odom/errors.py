@@ -15,3 +15,20 @@ class ConfigError(VcrOdomError, ValueError):
 
 class DataWarning(UserWarning):
     """Input data was usable but not as expected (NaN points dropped, no times.txt, an empty frame)."""
+
+
+class MissingExtraError(ConfigError):
+    """An optional dependency is not installed; the message names the pip extra that installs it.
+
+    Its own class so that ``compare`` can show such a method as a "not installed" row and go on.
+    """
+
+    def __init__(self, package: str, extra: str, detail: str = "") -> None:
+        self.package = package
+        self.extra = extra
+        super().__init__(f"{package} is {self.status}" + (f" ({detail})" if detail else ""))
+
+    @property
+    def status(self) -> str:
+        """The short form, for a table cell: ``not installed: pip install 'vcr-odom[EXTRA]'``."""
+        return f"not installed: pip install 'vcr-odom[{self.extra}]'"

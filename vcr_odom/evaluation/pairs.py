@@ -32,6 +32,7 @@ from numpy.typing import NDArray
 from vcr_odom.errors import ConfigError
 from vcr_odom.jsonsafe import json_safe
 from vcr_odom.metrics import PairErrors, pair_errors
+from vcr_odom.registration import SEQUENTIAL_METHODS
 
 if TYPE_CHECKING:
     from vcr_odom.data.base import LidarSequence
@@ -39,7 +40,6 @@ if TYPE_CHECKING:
     from vcr_odom.training.datasets import PairDataset
 
 INITIAL_GUESSES = ("identity", "ground-truth")
-SEQUENTIAL_METHODS = ("kiss-icp",)
 DEFAULT_PAIR_METHODS = ("icp10", "fpfh", "vcr", "vcr+icp")
 """The paper's Table III rows; ``NAME+icp`` is NAME polished by ICP on the pair's own clouds
 (:mod:`vcr_odom.evaluation.pairs_polish`)."""

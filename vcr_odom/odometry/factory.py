@@ -11,7 +11,7 @@ from vcr_odom.errors import ConfigError
 from vcr_odom.odometry.chain import Consult, DoubtRule, Odometry
 from vcr_odom.odometry.limits import InitialGuess, MotionLimits
 from vcr_odom.odometry.polish import POLISHES, make_polish
-from vcr_odom.registration import METHOD_NAMES, make_method
+from vcr_odom.registration import METHOD_NAMES, SEQUENTIAL_METHODS, make_method
 from vcr_odom.registration.base import Registrar, SequentialOdometry
 
 GLOBAL_METHODS = ("vcr", "fpfh")
@@ -41,10 +41,8 @@ def parse_method_spec(spec: str) -> tuple[str, str]:
     polish = polish if plus else default_polish(name)
     if polish not in POLISHES:
         raise ConfigError(f"unknown polish {polish!r} in {spec!r}; valid choices: {', '.join(POLISHES)}")
-    if name == "kiss-icp" and polish != "none":
-        raise ConfigError(
-            f"kiss-icp is a sequential odometry with its own registration: it takes no +{polish}"
-        )
+    if name in SEQUENTIAL_METHODS and polish != "none":
+        raise ConfigError(f"{name} is a sequential odometry with its own registration: it takes no +{polish}")
     return name, polish
 
 

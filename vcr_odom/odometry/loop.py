@@ -24,7 +24,7 @@ from vcr_odom.device import cores_shared_by
 from vcr_odom.errors import ConfigError
 from vcr_odom.geometry import Transform
 from vcr_odom.odometry.chain import Odometry, PreparedFrame, Step
-from vcr_odom.registration.base import SequentialOdometry
+from vcr_odom.registration.base import FinishingOdometry, SequentialOdometry
 
 
 @dataclass
@@ -34,7 +34,9 @@ class OdometryRun:
     ``stage_seconds``: ``load`` (reading frames) and, for a chained method, ``prepare`` (per-frame
     work), both in the producer thread when frames are prefetched; ``register`` (pairwise estimates),
     ``advance`` (checks, polish, chaining), or ``step`` for a method that keeps its own state
-    (kiss-icp); ``waiting`` (for the producer); ``bookkeeping``, the rest of the wall time.
+    (kiss-icp); ``optimise`` for a method that revises its trajectory at the end (KISS-SLAM's pose
+    graph); ``waiting`` (for the producer); ``bookkeeping``, the rest of the wall time.
+    ``slam``: what such a method reported (loop closures, its settings); empty for odometry.
     """
 
     method: str
@@ -45,6 +47,7 @@ class OdometryRun:
     wall_seconds: float
     interrupted: bool = False
     per_frame_info: list[dict[str, Any]] = field(default_factory=list)
+    slam: dict[str, Any] = field(default_factory=dict)
 
     @property
     def flagged_frames(self) -> list[int]:
@@ -164,6 +167,8 @@ def run_odometry(
     ``prefetch``: chunks loaded (and, where :attr:`Odometry.prepare_ahead`, prepared) ahead in a
     second thread (0: all in this thread); the poses are the same either way. A chained method whose registrar batches (VCR-Net on a GPU) gets
     chunks of frames; the poses are the same, ``on_frame`` just comes a chunk at a time.
+    A :class:`~vcr_odom.registration.base.FinishingOdometry` (KISS-SLAM) is finished after the last
+    frame: the run's poses are then its optimised ones, where ``on_frame`` saw its online estimates.
     """
     if prefetch < 0:
         raise ConfigError(f"prefetch must be >= 0; got {prefetch}")
@@ -205,9 +210,17 @@ def run_odometry(
             stop.set()
             if hasattr(items, "close"):
                 items.close()
+    slam: dict[str, Any] = {}
+    if poses and not interrupted and isinstance(method, FinishingOdometry):
+        try:
+            with timer("optimise"):
+                finished = method.finish(used)
+            poses, slam = list(finished.poses), finished.summary
+        except KeyboardInterrupt:  # Ctrl-C while optimising: the online poses, marked interrupted
+            interrupted = True
     wall = time.perf_counter() - started
     stages = {name: seconds for name, seconds in timer.seconds.items() if not name.startswith("_")}
-    consumer = sum(stages.get(name, 0.0) for name in ("register", "advance", "step", "waiting"))
+    consumer = sum(stages.get(name, 0.0) for name in ("register", "advance", "step", "optimise", "waiting"))
     if not prefetch:
         consumer += stages.get("load", 0.0) + stages.get("prepare", 0.0)
     elif isinstance(method, Odometry) and not method.prepare_ahead:
@@ -222,4 +235,5 @@ def run_odometry(
         wall_seconds=wall,
         interrupted=interrupted,
         per_frame_info=infos,
+        slam=slam,
     )

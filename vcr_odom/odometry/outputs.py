@@ -138,7 +138,9 @@ class Checkpoints:
 
 
 def run_summary(run: OdometryRun) -> dict[str, Any]:
-    """The ``run`` block of metrics.json: what was processed, what was flagged, how fast."""
+    """The ``run`` block of metrics.json: what was processed, what was flagged, how fast, and for a
+    SLAM method (``slam``) its loop closures."""
+    slam = {"slam": run.slam} if run.slam else {}
     return {
         "method": run.method,
         "frames_processed": len(run.frame_indices),
@@ -156,6 +158,7 @@ def run_summary(run: OdometryRun) -> dict[str, Any]:
         "wall_seconds": run.wall_seconds,
         "frames_per_second": run.frames_per_second,
         "stage_seconds": run.stage_seconds,
+        **slam,
     }
 
 

@@ -1,7 +1,9 @@
 """Registration methods behind one small interface, built by name with :func:`make_method`.
 
 Pairwise methods implement :class:`Registrar`; kiss-icp keeps a map across frames and implements
-:class:`SequentialOdometry`. Implementations are imported on demand, so importing this package is cheap.
+:class:`SequentialOdometry`, KISS-SLAM also revises its trajectory at the end
+(:class:`FinishingOdometry`). Implementations are imported on demand, so importing this package is
+cheap and an optional one (kiss-slam) is needed only when built.
 """
 
 from __future__ import annotations
@@ -11,6 +13,8 @@ from typing import Any
 
 from vcr_odom.errors import ConfigError
 from vcr_odom.registration.base import (
+    FinishedTrajectory,
+    FinishingOdometry,
     Registrar,
     RegistrationResult,
     SequentialOdometry,
@@ -25,8 +29,13 @@ METHOD_NAMES: dict[str, str] = {
     "fpfh": "open3d FPFH features + RANSAC global registration; no initial guess",
     "kiss-icp": "kiss-icp's own odometry pipeline (local map, adaptive threshold, constant velocity)",
     "vcr": "VCR-Net, learned global registration (no initial guess); needs trained weights",
+    "kiss-slam": "KISS-SLAM: kiss-icp, loop closures between local maps, a pose graph (optional: "
+    "pip install 'vcr-odom[slam]')",
 }
 """Method name -> one-line description (for ``--help`` and error messages)."""
+
+SEQUENTIAL_METHODS = ("kiss-icp", "kiss-slam")
+"""Methods that keep their own map across frames: no polish, no meaning on isolated pairs."""
 
 _ICP_SETTINGS: dict[str, dict[str, Any]] = {
     "icp10": {"variant": "point_to_plane", "max_iterations": 10},
@@ -49,6 +58,10 @@ def _method_class(key: str) -> type:
         from vcr_odom.registration.vcr import VcrRegistrar
 
         return VcrRegistrar
+    if key == "kiss-slam":
+        from vcr_odom.registration.kiss_slam import KissSlamOdometry
+
+        return KissSlamOdometry
     from vcr_odom.registration.kiss import KissIcpOdometry
 
     return KissIcpOdometry
@@ -57,7 +70,8 @@ def _method_class(key: str) -> type:
 def make_method(name: str, **options: Any) -> Registrar | SequentialOdometry:
     """Build the method called ``name``; ``options`` override its constructor defaults.
 
-    Raises :class:`ConfigError` for an unknown name or option, listing the valid ones.
+    Raises :class:`ConfigError` for an unknown name or option, listing the valid ones, and its
+    :class:`~vcr_odom.errors.MissingExtraError` for an optional method that is not installed.
     """
     key = name.strip().lower()
     if key not in METHOD_NAMES:
@@ -77,6 +91,9 @@ def make_method(name: str, **options: Any) -> Registrar | SequentialOdometry:
 
 __all__ = [
     "METHOD_NAMES",
+    "SEQUENTIAL_METHODS",
+    "FinishedTrajectory",
+    "FinishingOdometry",
     "Registrar",
     "RegistrationResult",
     "SequentialOdometry",

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
+from numpy.typing import NDArray
 
 from vcr_odom.data.base import Points
 from vcr_odom.geometry import Transform
@@ -77,3 +78,24 @@ class SequentialOdometry(Protocol):
     def reset(self) -> None: ...
 
     def step(self, points: Points, timestamp: float) -> Transform: ...
+
+
+@dataclass
+class FinishedTrajectory:
+    """A finishing method's final word: ``poses`` (``(n, 4, 4)``, frame 0 = identity) of the frames it
+    stepped through, and ``summary``, what it did beyond odometry (loop closures), for ``metrics.json``."""
+
+    poses: NDArray[np.float64]
+    summary: dict[str, Any] = field(default_factory=dict)
+
+
+@runtime_checkable
+class FinishingOdometry(SequentialOdometry, Protocol):
+    """A sequential method that revises its whole trajectory once the frames end: a SLAM system whose
+    pose graph, optimised over its loop closures, moves poses that ``step`` already returned.
+
+    ``finish(frame_indices)`` is called once after the last ``step`` (not after Ctrl-C: the online poses
+    are then kept) with the sequence's indices of the frames stepped, so closures can name frames.
+    """
+
+    def finish(self, frame_indices: Sequence[int]) -> FinishedTrajectory: ...
