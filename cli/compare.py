@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import click
+from rich.markup import escape
 
 from vcr_odom.cli.options import (
     describe_methods,
@@ -55,7 +56,8 @@ def reject_bad_combinations(ctx: click.Context, protocol: str, specs: tuple[str,
     multiple=True,
     callback=_check_specs,
     help="A method as run spells it (vcr = VCR-Net with its default polish, vcr+none = alone, "
-    f"fpfh+icp, ...); repeat for several. Default: {', '.join(DEFAULT_BASELINES)}.",
+    "fpfh+icp, kiss-slam = KISS-SLAM with its loop closures, from the optional extra "
+    f"vcr-odom[slam], ...); repeat for several. Default: {', '.join(DEFAULT_BASELINES)}.",
 )
 @click.option(
     "--protocol",
@@ -124,14 +126,19 @@ def print_comparison(comparison: Comparison, stride: int) -> None:
                 o.run.frames_per_second,
                 o.run.interrupted,
                 len(o.run.flagged_frames),
+                o.run.slam.get("loop_closures"),
+                o.status,
             )
             for o in comparison.odometry
         ]
         span = f"frames {indices[0]}..{indices[-1]}, stride {stride}, {len(indices)} frames"
         console.print(comparison_table(rows, title=f"{name} odometry: {span}"))
-        first = comparison.odometry[0].report
+        first = next((o.report for o in comparison.odometry if o.report is not None), None)
         if first is not None and first.drift.short_sequence:
             console.print(f"[dim]drift columns: {first.drift.label}")
+        for outcome in comparison.odometry:
+            if outcome.status:
+                console.print(f"[dim]{escape(outcome.method)}: {escape(outcome.status)}")
     for note in comparison.notes:
         console.print(f"[dim]{note}")
     for kind, results in comparison.pairs.items():

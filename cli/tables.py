@@ -62,17 +62,24 @@ def report_table(report: EvaluationReport, title: str = "Evaluation") -> Table:
 
 @dataclass
 class ComparisonRow:
+    """``closures``: loop closures of a SLAM method (None for odometry); ``status``: why a row has no
+    figures (``not installed: pip install ...``; the table shows the part before the colon)."""
+
     method: str
     needs_initial_guess: bool
     report: EvaluationReport | None
     frames_per_second: float
     interrupted: bool = False
     flagged: int = 0
+    closures: int | None = None
+    status: str = ""
 
 
 def comparison_table(rows: Sequence[ComparisonRow], title: str) -> Table:
-    """Methods side by side on the same frames; a method that loses track shows it in every column."""
+    """Methods side by side on the same frames; a method that loses track shows it in every column.
+    A ``closures`` column appears when a SLAM method (KISS-SLAM) is among the rows."""
     table = Table(title=title, header_style="bold")
+    slam = any(row.closures is not None for row in rows)
     headers = (
         "method",
         "prior",
@@ -84,6 +91,7 @@ def comparison_table(rows: Sequence[ComparisonRow], title: str) -> Table:
         "end-point [%]",
         "ATE [m]",
         "flagged",
+        *(("closures",) if slam else ()),
         "fps",
     )
     for header in headers:
@@ -91,8 +99,12 @@ def comparison_table(rows: Sequence[ComparisonRow], title: str) -> Table:
     for row in rows:
         prior = "init guess" if row.needs_initial_guess else "none (global)"
         name = row.method + (" (interrupted)" if row.interrupted else "")
+        closures = (("–" if row.closures is None else str(row.closures)),) if slam else ()
+        if row.status:  # "not installed: pip install ..." -> "(not installed)"; the caller prints the rest
+            table.add_row(f"{name} ({row.status.partition(':')[0]})", "–", *["–"] * 8, *closures, "–")
+            continue
         if row.report is None:
-            table.add_row(name, prior, *["–"] * 7, str(row.flagged), _f(row.frames_per_second, 1))
+            table.add_row(name, prior, *["–"] * 7, str(row.flagged), *closures, _f(row.frames_per_second, 1))
             continue
         pairs, drift = row.report.pairs, row.report.drift
         table.add_row(
@@ -106,6 +118,7 @@ def comparison_table(rows: Sequence[ComparisonRow], title: str) -> Table:
             _f(row.report.endpoint.trans_error_percent, 2),
             _f(row.report.ate_rpe.ate_trans_rmse_m),
             str(row.flagged),
+            *closures,
             _f(row.frames_per_second, 1),
         )
     return table

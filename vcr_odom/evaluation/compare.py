@@ -13,11 +13,12 @@ from functools import partial
 from pathlib import Path
 from typing import Any, Literal
 
+import numpy as np
 from pydantic import Field
 
 from vcr_odom.data.base import LidarSequence
 from vcr_odom.data.selection import FrameSelection
-from vcr_odom.errors import ConfigError
+from vcr_odom.errors import ConfigError, MissingExtraError
 from vcr_odom.evaluation.pairs import PAIR_KINDS, PairProtocolResult, evaluate_pair_protocol, pair_sets
 from vcr_odom.evaluation.pairs_polish import PAIR_POLISHES
 from vcr_odom.metrics import EvaluationReport
@@ -30,6 +31,7 @@ from vcr_odom.odometry.outputs import ground_truth_for, run_summary
 from vcr_odom.odometry.run import ProgressFactory, run_and_save, vcr_options
 from vcr_odom.plots import plot_trajectories
 from vcr_odom.preprocess import PreprocessConfig
+from vcr_odom.registration import SEQUENTIAL_METHODS
 from vcr_odom.registration.base import SequentialOdometry
 from vcr_odom.results import (
     check_output_folder,
@@ -76,12 +78,24 @@ class CompareSettings(Settings):
 
 @dataclass
 class MethodOutcome:
-    """One row of the odometry comparison."""
+    """One row of the odometry comparison. ``status`` says why a row has no run (an optional method
+    that is not installed: ``not installed: pip install 'vcr-odom[slam]'``); empty when it ran."""
 
     method: str
     needs_initial_guess: bool
     run: OdometryRun
     report: EvaluationReport | None
+    status: str = ""
+
+
+@dataclass(frozen=True)
+class Unavailable:
+    """A method that cannot run here (``error`` says why and what installs it): a row, not a failure."""
+
+    error: MissingExtraError
+
+
+Method = Odometry | SequentialOdometry | Unavailable
 
 
 @dataclass
@@ -114,17 +128,12 @@ def run_comparison(settings: CompareSettings, progress: ProgressFactory | None =
     sequence = settings.selection.open()
     indices = settings.selection.indices(sequence)
     kinds = pair_kinds_to_run(settings, sequence) if settings.protocol != "odometry" else ()
-    odometries = {}
+    odometries: dict[str, Method] = {}
     if settings.protocol in ("odometry", "both"):
-        odometries = {
-            spec: build_odometry(
-                spec,
-                initial_guess=settings.initial_guess,
-                consult=settings.consult,
-                **settings.method_options(spec),
-            )
-            for spec in specs
-        }
+        odometries = {spec: _build(spec, settings) for spec in specs}
+        missing = [method.error for method in odometries.values() if isinstance(method, Unavailable)]
+        if missing and len(missing) == len(odometries):
+            raise ConfigError(f"nothing to compare: {missing[0]}")
     if kinds:
         pair_input_range([pair_spec(s) for s in settings.methods if works_on_pairs(s)], settings.weights)
     folder = create_result_folder(
@@ -150,13 +159,27 @@ def run_comparison(settings: CompareSettings, progress: ProgressFactory | None =
     return comparison
 
 
+def _build(spec: str, settings: CompareSettings) -> Method:
+    """The odometry called ``spec``, or :class:`Unavailable` where it is an optional method that is
+    not installed (its row says so; the other methods still run)."""
+    try:
+        return build_odometry(
+            spec,
+            initial_guess=settings.initial_guess,
+            consult=settings.consult,
+            **settings.method_options(spec),
+        )
+    except MissingExtraError as error:
+        return Unavailable(error)
+
+
 def pair_kinds_to_run(settings: CompareSettings, sequence: LidarSequence) -> tuple[str, ...]:
     """The pair kinds the pairs protocol can score here; a ConfigError where it could score nothing
     (every method needs a map, or only consecutive pairs were asked for and there is no ground truth)."""
     if not any(works_on_pairs(spec) for spec in settings.methods):
         raise ConfigError(
             f"--protocol {settings.protocol}: none of the methods ({', '.join(settings.methods)}) works "
-            "on isolated pairs (kiss-icp, as a method or a polish, needs a sequence's local map)"
+            "on isolated pairs (kiss-icp, as a method or a polish, and kiss-slam need a sequence's local map)"
         )
     kinds = tuple(settings.pair_kinds)
     if sequence.gt_poses is None and "consecutive" in kinds:
@@ -173,17 +196,21 @@ def compare_methods(
     sequence: LidarSequence,
     frame_indices: list[int],
     folder: Path,
-    odometries: dict[str, Odometry | SequentialOdometry],
+    odometries: dict[str, Method],
     progress: ProgressFactory | None = None,
 ) -> list[MethodOutcome]:
     """Each method over the same frames, one sub-folder each (itself a result unit, see
-    :func:`~vcr_odom.odometry.run.run_and_save`).
+    :func:`~vcr_odom.odometry.run.run_and_save`). An :class:`Unavailable` method gets a row with its
+    status and no folder.
 
     Ctrl-C stops the method in progress and skips the rest; what finished is kept. ``latest`` moves to
     the comparison once its first method holds a trajectory.
     """
     outcomes: list[MethodOutcome] = []
     for spec, odometry in odometries.items():
+        if isinstance(odometry, Unavailable):
+            outcomes.append(MethodOutcome(spec, True, _no_run(spec), None, odometry.error.status))
+            continue
         needs_guess = odometry.registrar.needs_initial_guess if isinstance(odometry, Odometry) else True
         on_saved = partial(point_latest_at, folder.parent, folder)
         (folder / spec).mkdir(exist_ok=True)  # no marker until its first unit; the comparison's says partial
@@ -197,11 +224,16 @@ def compare_methods(
     return outcomes
 
 
+def _no_run(spec: str) -> OdometryRun:
+    return OdometryRun(spec, [], np.empty((0, 4, 4)), np.empty(0), {}, 0.0)
+
+
 def publish_comparison(comparison: Comparison, reason: str = "") -> None:
     """The comparison's own unit: ``compare.json`` and the overlay plot (odometry rows), ``pairs.json``,
     then the marker, ``complete`` only when nothing stopped it."""
     folder, sequence, indices = comparison.folder, comparison.sequence, comparison.frame_indices
-    rows = comparison.odometry
+    rows = [o for o in comparison.odometry if not o.status]
+    skipped = {o.method: o.status for o in comparison.odometry if o.status}
     done = min((len(o.run.frame_indices) for o in rows), default=0)
     with result_unit(folder) as unit:
         if rows:
@@ -212,10 +244,11 @@ def publish_comparison(comparison: Comparison, reason: str = "") -> None:
                 ground_truth_for(sequence, indices),
                 title=f"{sequence.name}, stride {stride}",
             )
-            summary = {
+            summary: dict[str, Any] = {
                 o.method: {"run": run_summary(o.run), **(o.report.to_dict() if o.report else {})}
                 for o in rows
             }
+            summary.update({method: {"status": status} for method, status in skipped.items()})
             write_json(unit / "compare.json", summary)
         if comparison.pairs:
             pairs = {
@@ -231,14 +264,15 @@ def publish_comparison(comparison: Comparison, reason: str = "") -> None:
             reason,
             methods_done=[o.method for o in rows if not o.run.interrupted],
             pair_kinds_done=list(comparison.pairs),
+            **({"methods_skipped": skipped} if skipped else {}),
         )
     point_latest_at(folder.parent, folder)
 
 
 def works_on_pairs(spec: str) -> bool:
-    """kiss-icp, as a method or a polish, needs a sequence's local map: not an isolated pair."""
+    """kiss-icp (as a method or a polish) and kiss-slam need a sequence's local map: not an isolated pair."""
     name, plus, polish = spec.strip().lower().partition("+")
-    return name != "kiss-icp" and (not plus or polish in ("none", *PAIR_POLISHES))
+    return name not in SEQUENTIAL_METHODS and (not plus or polish in ("none", *PAIR_POLISHES))
 
 
 def pair_spec(spec: str) -> str:
@@ -259,7 +293,7 @@ def compare_pairs(
     if left_out:
         comparison.notes.append(
             f"left out of the pairs protocol: {', '.join(left_out)} (kiss-icp, as a method or a polish, "
-            "needs a sequence's local map)."
+            "and kiss-slam need a sequence's local map)."
         )
     sequence = comparison.sequence
     if kinds is None:
