@@ -22,6 +22,7 @@ from vcr_odom.evaluation.revisits import (
     select_revisits,
     share_limit,
     stratified_sample,
+    true_revisits,
 )
 from vcr_odom.registration.base import RegistrationResult
 
@@ -109,6 +110,23 @@ def test_heading_wraps_across_180() -> None:
     assert pair.heading_deg == pytest.approx(20.0)
 
 
+def test_true_revisits_need_travel_between_the_frames() -> None:
+    """The U-turn's way back passes 1 m beside the way out (180 deg): revisits once the sensor has
+    travelled far enough in between; standing still (or turning on the spot) never is one."""
+    poses = u_turn()
+    travelled = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(poses[:, :3, 3], axis=0), axis=1))])
+    pairs = true_revisits(poses, radius_m=1.5, min_path_m=8.0)
+    assert pairs and {round(p.heading_deg) for p in pairs} <= {135, 180}
+    for p in pairs:
+        assert p.distance_m <= 1.5 and travelled[p.source] - travelled[p.target] >= 8.0
+    assert (10, 15) not in {(p.target, p.source) for p in pairs}  # the turn on the spot: no travel
+    standing = np.tile(np.eye(4), (20, 1, 1))
+    assert not true_revisits(standing)
+    assert len(true_revisits(standing, min_path_m=0.0)) == 20 * 19 // 2
+    with pytest.raises(ConfigError, match="radius_m"):
+        true_revisits(poses, radius_m=0.0)
+
+
 def test_frames_restrict_the_pairs() -> None:
     pairs = candidate_pairs(square_loop(), frames=range(5, 15))
     assert pairs and all(5 <= p.target < p.source < 15 for p in pairs)
@@ -173,6 +191,7 @@ def test_limit_is_shared_by_bin_size() -> None:
         ({"min_frame_gap": 0}, "--min-frame-gap"),
         ({"seed": -1}, "--seed"),
         ({"bin_deg": -30.0}, "--heading-bin"),
+        ({"min_path_m": -1.0}, "min_path_m"),
     ],
 )
 def test_bad_options_name_themselves(options: dict, named: str) -> None:

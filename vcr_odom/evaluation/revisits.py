@@ -12,7 +12,11 @@ Selection works on the sequence's ground-truth LiDAR-frame poses ``P`` (world = 
   its x axis, ``atan2(R[1, 0], R[0, 0])``), wrapped to [0, 180] deg, at most ``max_heading_deg``.
   Yaw, not the geodesic angle, because a hand-held sensor's tilt would otherwise count as a turn;
   the geodesic angle of ``inv(P_i) @ P_j`` is reported beside it;
-- ``j - i >= min_frame_gap`` (1: any two distinct frames).
+- ``j - i >= min_frame_gap`` (1: any two distinct frames), and at least ``min_path_m`` metres of
+  travel between them (0: no such bound).
+
+:func:`true_revisits` lists every pair within a radius after some travel, whatever the heading: the
+places a loop closure should recognise (synthetic routes that come back, ``vcr-odom synth --route``).
 
 A long drive gives thousands of such pairs, so at most ``limit`` are kept: the limit is shared
 between heading bins (0-30, 30-60, 60-90 deg by default) as evenly as their sizes allow, and
@@ -71,6 +75,7 @@ class RevisitOptions:
     limit: int | None = 60  # None: every pair
     seed: int = 0
     bin_deg: float = 30.0  # width of the heading bins the limit is shared between
+    min_path_m: float = 0.0  # travel between the two frames, summed over every frame in between
 
     def __post_init__(self) -> None:
         for option, value in (
@@ -78,6 +83,7 @@ class RevisitOptions:
             ("--max-m", self.max_m),
             ("--max-heading", self.max_heading_deg),
             ("--heading-bin", self.bin_deg),
+            ("min_path_m", self.min_path_m),
         ):
             if not isinstance(value, int | float) or not math.isfinite(value):
                 raise ConfigError(f"{option} must be a finite number; got {value!r}")
@@ -91,6 +97,8 @@ class RevisitOptions:
             raise ConfigError(f"--max-heading must be in (0, 180] deg; got {self.max_heading_deg}")
         if self.bin_deg <= 0:
             raise ConfigError(f"--heading-bin must be positive; got {self.bin_deg}")
+        if self.min_path_m < 0:
+            raise ConfigError(f"min_path_m must be >= 0 m; got {self.min_path_m}")
         for option, value in (("--min-frame-gap", self.min_frame_gap), ("--limit", self.limit)):
             if value is not None and (not isinstance(value, int | np.integer) or value < 1):
                 raise ConfigError(f"{option} must be a positive integer; got {value!r}")
@@ -145,6 +153,8 @@ def candidate_pairs(
     index = np.asarray(frames, dtype=np.int64)
     positions = poses[index, :3, 3]
     yaws = yaw_angles(poses[index])
+    steps = np.linalg.norm(np.diff(poses[:, :3, 3], axis=0), axis=1)
+    travelled = np.concatenate([[0.0], np.cumsum(steps)])[index]
     found: list[tuple[int, int, float, float]] = []
     for a in range(len(index) - 1):
         later = np.arange(a + 1, len(index))
@@ -155,6 +165,7 @@ def candidate_pairs(
             & (distance <= options.max_m + BOUND_TOLERANCE)
             & (heading <= options.max_heading_deg + BOUND_TOLERANCE)
             & (index[later] - index[a] >= options.min_frame_gap)
+            & (travelled[later] - travelled[a] >= options.min_path_m - BOUND_TOLERANCE)
         )
         for n in np.flatnonzero(keep):
             found.append((int(index[a]), int(index[later[n]]), float(distance[n]), float(heading[n])))
@@ -166,6 +177,36 @@ def candidate_pairs(
         RevisitPair(i, j, float(distance), float(heading), float(rotation))
         for (i, j, distance, heading), rotation in zip(found, rotations, strict=True)
     ]
+
+
+def true_revisits(
+    poses: ArrayLike | LidarSequence,
+    radius_m: float = 5.0,
+    min_path_m: float = 30.0,
+    min_frame_gap: int = 1,
+) -> list[RevisitPair]:
+    """Every pair of frames (i, j), i < j, whose sensors are at most ``radius_m`` apart after at least
+    ``min_path_m`` metres of travel (and ``min_frame_gap`` frames) between them, with the heading
+    change (any, up to 180 deg), ordered by (i, j): the revisits a loop closure should find.
+
+    Why travel and not only frames: a car standing at a light or a walker pausing stays within the
+    radius for many frames without having left and come back. ``poses`` are 4x4 poses in one frame
+    (world or first-frame), or a sequence with ground truth (its ``gt_poses``)."""
+    if hasattr(poses, "gt_poses"):
+        if poses.gt_poses is None:
+            raise ConfigError(f"true revisits need ground-truth poses; {poses.name} has none")
+        poses = poses.gt_poses
+    if not (isinstance(radius_m, int | float) and math.isfinite(radius_m) and radius_m > 0):
+        raise ConfigError(f"radius_m must be a positive number of metres; got {radius_m!r}")
+    options = RevisitOptions(
+        min_m=0.0,
+        max_m=radius_m,
+        max_heading_deg=180.0,
+        min_frame_gap=min_frame_gap,
+        limit=None,
+        min_path_m=min_path_m,
+    )
+    return candidate_pairs(poses, options)
 
 
 def share_limit(limit: int, sizes: Sequence[int]) -> list[int]:
