@@ -8,7 +8,7 @@ network trained on the scene sees the variety of KITTI's drives rather than one 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from enum import IntEnum
 from typing import TYPE_CHECKING
 
@@ -140,6 +140,30 @@ def random_profile(rng: np.random.Generator, kind: ZoneKind) -> Profile:
     )
 
 
+@dataclass(frozen=True, eq=False)
+class RouteFeatures:
+    """What a route other than the open street adds to the street's plan (``None``, the open street,
+    keeps the plan exactly as it always was, random draws included).
+
+    ``closed``: the road is one lap of a closed street; its last zone continues into its first, so
+    the cross-section does not jump where the lap's stations start again. ``self_crossings``: (station,
+    station, angle in deg) where the road crosses itself; nothing is built there. ``turning_loop``:
+    the centre line ``(N, 2)`` of a turning loop beyond the road's end, kept clear like a carriageway.
+    ``single_zone``: one cross-section all along and no cross streets (repeated blocks).
+    """
+
+    closed: bool = False
+    self_crossings: tuple[tuple[float, float, float], ...] = ()
+    turning_loop: FloatArray | None = field(default=None, repr=False)
+    single_zone: bool = False
+
+
+TURNING_LOOP_HALF_WIDTH = 3.5
+"""Half width (m) of a turning loop's carriageway (one lane and a shoulder)."""
+JUNCTION_MARGIN = 3.0
+"""Metres kept free beyond the other branch's outer edge where a road crosses itself."""
+FLAT_RAMP = 15.0
+"""Metres over which the camber fades out towards a junction of a road with itself or its turning loop."""
 CAMBER = 0.015
 """Cross-fall of the carriageway from its crown to the curbs (1.5 %, a typical road design value)."""
 ROUGHNESS = np.array([0.3, 0.5, 0.4, 1.0])
@@ -154,11 +178,26 @@ class StreetLayout:
     how objects keep off the road even where the road turns sharply or passes itself again.
     """
 
-    def __init__(self, road: Road, terrain: Terrain, rng: np.random.Generator, style: SceneStyle) -> None:
+    def __init__(
+        self,
+        road: Road,
+        terrain: Terrain,
+        rng: np.random.Generator,
+        style: SceneStyle,
+        features: RouteFeatures | None = None,
+    ) -> None:
         self.road = road
         self.terrain = terrain
         self.style = style
-        self._make_zones(rng)
+        self.features = features
+        self.junctions: list[tuple[float, float]] = []
+        """(station, half length) of stretches where the road crosses itself: nothing is built there."""
+        self._flat_spots: list[tuple[FloatArray, float]] = []
+        self._road_tree: cKDTree | None = None
+        if features is None:
+            self._make_zones(rng)
+        else:
+            self._make_route_zones(rng, features)
         self._make_samples()
 
     # -- zones and intersections
@@ -190,6 +229,61 @@ class StreetLayout:
         self.crossings = np.array(crossings)
         self.crossing_half_widths = np.array(half_widths)
 
+    def _draw_profile(self, rng: np.random.Generator, with_buildings: bool = False) -> Profile:
+        """A profile of a zone kind drawn by the style's weights (``with_buildings``: not open land,
+        where the style has any other kind)."""
+        kinds = list(self.style.zone_weights)
+        weights = np.array(list(self.style.zone_weights.values()))
+        if with_buildings and weights[[k != ZoneKind.OPEN for k in kinds]].sum() > 0:
+            weights = np.where([k == ZoneKind.OPEN for k in kinds], 0.0, weights)
+        kind = ZoneKind(kinds[int(rng.choice(len(kinds), p=weights / weights.sum()))])
+        profile = random_profile(rng, kind)
+        return self.style.adjust(rng, profile) if self.style.adjust else profile
+
+    def _make_route_zones(self, rng: np.random.Generator, features: RouteFeatures) -> None:
+        """Zones and cross streets for a route's road: as on the open street, but on a lap from its
+        first metres on and continuous across its seam, none within 60 m of where the road crosses
+        itself, and a single zone without cross streets for repeated blocks."""
+        style = self.style
+        starts, profiles = [0.0], [self._draw_profile(rng, with_buildings=features.single_zone)]
+        crossings: list[float] = []
+        half_widths: list[float] = []
+        own = [station for crossing in features.self_crossings for station in crossing[:2]]
+        s = (0.0 if features.closed else PREROLL) + rng.uniform(30.0, 120.0)
+        while not features.single_zone and s < self.road.length - 60.0:
+            _, _, curvature = self.road.sample(np.arange(s - 25.0, s + 25.0, 5.0))
+            clear = all(self._apart(s, station) >= 60.0 for station in own)
+            if clear and np.max(np.abs(curvature)) < 1.0 / 80.0:
+                if style.crossings:
+                    crossings.append(s)
+                    half_widths.append(rng.uniform(*style.crossing_half_width))
+                if rng.random() < 0.6:
+                    starts.append(s)
+                    profiles.append(self._draw_profile(rng))
+            s += rng.uniform(*style.crossing_gap)
+        if features.closed and len(profiles) > 1:
+            profiles[-1] = profiles[0]
+        self.zone_starts = np.array(starts)
+        self.profiles = profiles
+        self.crossings = np.array(crossings)
+        self.crossing_half_widths = np.array(half_widths)
+        for first, second, angle in features.self_crossings:
+            self._add_junction(first, second, math.radians(angle))
+
+    def _apart(self, a: float, b: float) -> float:
+        """Distance between two stations along the road (round the lap when it is closed)."""
+        gap = abs(a - b)
+        return min(gap, self.road.length - gap) if self.features and self.features.closed else gap
+
+    def _add_junction(self, first: float, second: float, angle: float) -> None:
+        """Keep both branches of a self-crossing free over the other branch's full width."""
+        width = [max(self.profile_at(s).outer(0), self.profile_at(s).outer(1)) for s in (first, second)]
+        sin, cos = max(abs(math.sin(angle)), 0.3), abs(math.cos(angle))
+        for station, own, other in ((first, width[0], width[1]), (second, width[1], width[0])):
+            self.junctions.append((station, (other + own * cos) / sin + JUNCTION_MARGIN))
+        xy, _, _ = self.road.sample([first])
+        self._flat_spots.append((xy[0], max(half for _, half in self.junctions[-2:])))
+
     def profile_at(self, station: float) -> Profile:
         return self.profiles[int(np.searchsorted(self.zone_starts, station, side="right")) - 1]
 
@@ -198,6 +292,10 @@ class StreetLayout:
         out = []
         for s, hw in zip(self.crossings, self.crossing_half_widths, strict=True):
             lo, hi = s - hw - margin - 3.0, s + hw + margin + 3.0
+            if hi > s0 and lo < s1:
+                out.append((lo, hi))
+        for s, half in self.junctions:
+            lo, hi = s - half - margin, s + half + margin
             if hi > s0 and lo < s1:
                 out.append((lo, hi))
         return out
@@ -231,26 +329,82 @@ class StreetLayout:
             normal = np.array([-math.sin(heading[0]), math.cos(heading[0])])
             for side, sign in ((0, -1.0), (1, 1.0)):
                 dist = np.arange(profile.curb(side), 110.0, ROAD_STEP)
+                if self.features is not None:
+                    dist = self._clip_arm(s, centre[0], sign * normal, dist, hw)
                 xy.append(centre + sign * dist[:, None] * normal)
                 tangent.append(np.tile(sign * normal, (len(dist), 1)))
                 sidewalk = hw + 2.5
                 edges.append(np.tile([[hw, hw, sidewalk], [hw, hw, sidewalk]], (len(dist), 1, 1)))
                 kinds.append(np.full(len(dist), profile.kind))
                 albedo.append(np.full(len(dist), profile.road_albedo))
+        rounded = sum(len(part) for part in xy)
+        if self.features is not None and self.features.turning_loop is not None:
+            self._add_turning_loop(self.features.turning_loop, xy, tangent, edges, kinds, albedo)
         self.sample_xy = np.concatenate(xy)
+        self._rounded_end = np.arange(len(self.sample_xy)) < rounded
         self.sample_tangent = np.concatenate(tangent)
         self.sample_edges = np.concatenate(edges)
         self.sample_kind = np.concatenate(kinds)
         self.sample_albedo = np.concatenate(albedo)
         self._tree = cKDTree(self.sample_xy)
 
+    def _clip_arm(
+        self, station: float, centre: FloatArray, direction: FloatArray, dist: FloatArray, half_width: float
+    ) -> FloatArray:
+        """A cross-street arm's distances up to where it would come near another part of the road
+        (a loop's far side, the other lobe of a figure eight): arms end before they run into it."""
+        if self._road_tree is None:
+            self._road_tree = cKDTree(self.road.xy)
+        widest = max(max(p.outer(0), p.outer(1)) for p in self.profiles)
+        reach = half_width + widest + JUNCTION_MARGIN
+        points = centre + dist[:, None] * direction
+        for k, near in enumerate(self._road_tree.query_ball_point(points, reach)):
+            if any(self._apart(i * ROAD_STEP, station) > reach + 30.0 for i in near):
+                return dist[:k]
+        return dist
+
+    def _add_turning_loop(
+        self,
+        loop: FloatArray,
+        xy: list[FloatArray],
+        tangent: list[FloatArray],
+        edges: list[FloatArray],
+        kinds: list[NDArray[np.int64]],
+        albedo: list[FloatArray],
+    ) -> None:
+        """Samples of a turning loop beyond the road's end (every ROAD_STEP metres of its centre
+        line), as a carriageway of its own; its camber fades out where it meets the road."""
+        along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(loop, axis=0), axis=1))])
+        at = np.arange(0.0, along[-1], ROAD_STEP)
+        points = np.column_stack([np.interp(at, along, loop[:, 0]), np.interp(at, along, loop[:, 1])])
+        step = np.gradient(points, axis=0)
+        profile = self.profile_at(self.road.length)
+        hw = TURNING_LOOP_HALF_WIDTH
+        xy.append(points)
+        tangent.append(step / np.linalg.norm(step, axis=1, keepdims=True))
+        edges.append(np.tile([[hw, hw, hw + 1.0], [hw, hw, hw + 1.0]], (len(points), 1, 1)))
+        kinds.append(np.full(len(points), profile.kind))
+        albedo.append(np.full(len(points), profile.road_albedo))
+        mouth = 0.5 * (loop[0] + loop[-1])
+        self._flat_spots.append((mouth, 0.5 * float(np.linalg.norm(loop[-1] - loop[0])) + FLAT_RAMP + hw))
+
     def nearest(self, xy: ArrayLike) -> tuple[FloatArray, NDArray[np.int64]]:
-        """Signed offset (left positive) from the nearest road's centre line, and that sample's index."""
+        """Signed offset (left positive) from the nearest road's centre line, and that sample's index.
+
+        On a route's plan the street's and its cross streets' ends are rounded off: beyond the last
+        sample the distance is to that sample, not to the line through it (the open street keeps its
+        original lookup). A turning loop's ends are not: they lie on the street's lanes, and the lane
+        beyond them is carriageway."""
         xy = np.atleast_2d(np.asarray(xy, dtype=np.float64))
         _, index = self._tree.query(xy)
         rel = xy - self.sample_xy[index]
         t = self.sample_tangent[index]
-        return t[:, 0] * rel[:, 1] - t[:, 1] * rel[:, 0], index
+        signed = t[:, 0] * rel[:, 1] - t[:, 1] * rel[:, 0]
+        if self.features is not None:
+            along = np.abs(t[:, 0] * rel[:, 0] + t[:, 1] * rel[:, 1])
+            beyond = np.where(self._rounded_end[index], np.maximum(along - ROAD_STEP, 0.0), 0.0)
+            signed = np.where(signed < 0.0, -1.0, 1.0) * np.hypot(signed, beyond)
+        return signed, index
 
     def lateral(self, xy: ArrayLike) -> tuple[FloatArray, FloatArray, NDArray[np.int64]]:
         """Distance from the nearest road's centre line, that road's (lane edge, curb, outer) on
@@ -272,6 +426,9 @@ class StreetLayout:
         curbs = self.sample_edges[index, :, 1]  # right, left
         crown, half_width = 0.5 * (curbs[:, 1] - curbs[:, 0]), 0.5 * (curbs[:, 1] + curbs[:, 0])
         camber = -CAMBER * np.minimum(np.abs(signed - crown), half_width)
+        for centre, radius in self._flat_spots:
+            fade = np.clip((np.linalg.norm(xy - centre, axis=1) - radius) / FLAT_RAMP, 0.0, 1.0)
+            camber = camber * fade * fade * (3.0 - 2.0 * fade)
         outer = self.sample_edges[index, (signed > 0).astype(np.int64), 2]
         weight = np.clip((np.abs(signed) - outer - 3.0) / 12.0, 0.0, 1.0)
         weight = weight * weight * (3.0 - 2.0 * weight)

@@ -104,7 +104,7 @@ class Road:
         return xy + normal * np.asarray(lateral, dtype=np.float64).reshape(-1, 1)
 
 
-def _smooth(values: FloatArray, sigma_samples: float) -> FloatArray:
+def smooth(values: FloatArray, sigma_samples: float) -> FloatArray:
     """Gaussian smoothing with edge padding: turns piecewise curvature into clothoid-like transitions."""
     half = int(3 * sigma_samples)
     kernel = np.exp(-0.5 * (np.arange(-half, half + 1) / sigma_samples) ** 2)
@@ -144,7 +144,7 @@ def make_road(rng: np.random.Generator, length: float, shape: RoadShape = RoadSh
         sign = 1.0 if rng.random() < 0.5 else -1.0
         pieces.append(np.full(max(1, int(radius * angle / ROAD_STEP)), sign / radius))
         total = sum(len(p) for p in pieces)
-    curvature = _smooth(np.concatenate(pieces), sigma_samples=6.0 / ROAD_STEP)[:n]
+    curvature = smooth(np.concatenate(pieces), sigma_samples=6.0 / ROAD_STEP)[:n]
     heading = np.concatenate([[0.0], np.cumsum(0.5 * (curvature[1:] + curvature[:-1]) * ROAD_STEP)])
     mid = heading[:-1] + 0.5 * np.diff(heading)
     steps = np.stack([np.cos(mid), np.sin(mid)], 1) * ROAD_STEP

@@ -37,13 +37,15 @@ BLOCK_LENGTH = 50.0
 class RoadsideBlock:
     """Builds the road-side content of one block of road (both sides) into a mesh."""
 
-    def __init__(self, layout: StreetLayout, index: int, rng: np.random.Generator) -> None:
+    def __init__(
+        self, layout: StreetLayout, index: int, rng: np.random.Generator, length: float = BLOCK_LENGTH
+    ) -> None:
         self.layout = layout
         self.road = layout.road
         self.rng = rng
         self.mesh = MeshBuilder()
-        self.s0 = index * BLOCK_LENGTH
-        self.s1 = min(self.s0 + BLOCK_LENGTH, self.road.length)
+        self.s0 = index * length
+        self.s1 = min(self.s0 + length, self.road.length)
 
     # -- helpers
     def ground(self, xy: ArrayLike) -> FloatArray:
