@@ -77,7 +77,7 @@ def _check_seq(ctx: click.Context, param: click.Parameter, value: str) -> str:
     show_default=True,
     help="Frames per second (times.txt and the motion between frames follow it), e.g. 2 for a 2 Hz scanner.",
 )
-@config_options(SynthConfig, ("motion", "keyframes", "keyframe_angle", "thin"))
+@config_options(SynthConfig, ("route", "motion", "keyframes", "keyframe_angle", "thin"))
 def synth(
     out: Path,
     seq: str,
@@ -89,6 +89,7 @@ def synth(
     scene: str,
     stops: bool,
     rate_hz: float,
+    route: str,
     motion: str,
     keyframes: float | None,
     keyframe_angle: float,
@@ -111,6 +112,7 @@ def synth(
         scene=scene,
         stops=stops,
         frame_period=1.0 / rate_hz,
+        route=route,
         motion=motion,
         keyframes=keyframes,
         keyframe_angle=keyframe_angle,
@@ -124,8 +126,9 @@ def synth(
         f"Wrote {written.frames} frames{kept} to {written.seq_dir} and poses to {written.poses_file}"
     )
     what = "Walk" if written.motion == "handheld" else "Drive"
+    where = f", route {written.route}" if written.route != "street" else ""
     console.print(
         f"{what}: {written.length:.1f} m in {written.duration:.1f} s "
         f"({written.frames / written.seconds:.1f} frames/s generated); "
-        f"{written.sensor} at {written.height:.2f} m, {written.scene} scene"
+        f"{written.sensor} at {written.height:.2f} m, {written.scene} scene{where}"
     )

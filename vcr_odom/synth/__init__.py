@@ -12,7 +12,9 @@ Modules, from the ground up: :mod:`~vcr_odom.synth.mesh` (triangles and primitiv
 (zones, cross-sections, cross streets), :mod:`~vcr_odom.synth.parts` and
 :mod:`~vcr_odom.synth.buildings` (what stands beside the road), :mod:`~vcr_odom.synth.roadside`
 (placing them block by block), :mod:`~vcr_odom.synth.styles` (the ``--scene`` styles),
-:mod:`~vcr_odom.synth.scene` (the world for one seed, built lazily), :mod:`~vcr_odom.synth.sensor`
+:mod:`~vcr_odom.synth.scene` (the world for one seed, built lazily), :mod:`~vcr_odom.synth.routes`
+(streets that come back: :mod:`~vcr_odom.synth.paths`, :mod:`~vcr_odom.synth.closed_roads`,
+:mod:`~vcr_odom.synth.turnaround`, :mod:`~vcr_odom.synth.repeating`), :mod:`~vcr_odom.synth.sensor`
 (sensor models and ray casting), :mod:`~vcr_odom.synth.drive` (the car's path and speeds),
 :mod:`~vcr_odom.synth.handheld` (a walk with a handheld scanner), :mod:`~vcr_odom.synth.keyframes`
 (keyframes and voxel thinning), :mod:`~vcr_odom.synth.sequence` (the sequence) and
@@ -29,6 +31,7 @@ from vcr_odom.synth.kitti_layout import (
     write_sequence,
 )
 from vcr_odom.synth.mesh import MeshPart, Surface
+from vcr_odom.synth.routes import ROUTES
 from vcr_odom.synth.scene import StreetScene
 from vcr_odom.synth.sensor import SENSOR_MODELS, LidarSimulator, SensorConfig
 from vcr_odom.synth.sequence import FRAME_PERIOD, HEIGHT_RANGE, SynthConfig, SynthSequence
@@ -38,6 +41,7 @@ __all__ = [
     "FRAME_PERIOD",
     "HEIGHT_RANGE",
     "KITTI_TR",
+    "ROUTES",
     "SCENE_STYLES",
     "SENSOR_MODELS",
     "SEQUENCE_NAME",

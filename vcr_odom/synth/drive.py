@@ -15,7 +15,7 @@ from numpy.typing import NDArray
 
 from vcr_odom.errors import ConfigError
 from vcr_odom.geometry import rotation_from_euler_zyx
-from vcr_odom.synth.road import PREROLL, ROAD_STEP
+from vcr_odom.synth.road import PREROLL, ROAD_STEP, Road
 from vcr_odom.synth.scene import StreetScene
 
 START_DWELL = (1.0, 3.0)
@@ -50,25 +50,47 @@ def make_drive(
     stops: bool,
     frame_period: float,
 ) -> Drive:
-    """The car follows the road at the speed profile (with ``stops``: from a standing start, stopping
-    now and then); yaw follows the road, pitch and roll the ground under it, plus a little body
-    pitch/roll from braking and cornering. The sensor sits ``height`` metres above the ground."""
-    n = len(scene.road.xy)
-    stop_at, dwell = (
-        _stops(n, np.random.default_rng([seed, 7])) if stops else (np.zeros(0, np.int64), np.zeros(0))
-    )
-    v = _speed_profile(scene, speed, np.random.default_rng([seed, 4]), stop_at)
-    stations = np.arange(n) * ROAD_STEP
-    s = _frame_stations(v, np.arange(frames) * frame_period, stop_at, dwell)
+    """The car follows the scene's path (the road, on the open street) at the speed profile (with
+    ``stops``: from a standing start, stopping now and then); yaw follows the path, pitch and roll the
+    ground under it, plus a little body pitch/roll from braking and cornering. The sensor sits
+    ``height`` metres above the ground."""
+    path = scene.path.line
+    s, v = _stations_and_speeds(path.curvature, frames, speed, seed, stops, frame_period)
+    stations = np.arange(len(path.xy)) * ROAD_STEP
     speed_at = np.interp(s, stations, v)
     accel = np.interp(s, stations, np.gradient(v, ROAD_STEP) * v)
-    xy, heading, curvature = scene.road.sample(s)
+    xy, heading, curvature = path.sample(s)
     poses = _vehicle_poses(scene, xy, heading, accel, speed_at**2 * curvature, height)
     return Drive(s, speed_at, poses)
 
 
+def drive_travel(
+    path: Road, *, frames: int, speed: float, seed: int, stops: bool, frame_period: float
+) -> float:
+    """How far (m) along ``path`` the car of :func:`make_drive` gets from its first frame to its last
+    (what a route is sized by). Past the path's end it drives on as if the path ran straight on."""
+    reach = PREROLL + frames * frame_period * speed * 1.5 + 10.0
+    extra = max(0, math.ceil(reach / ROAD_STEP) + 1 - len(path.xy))
+    curvature = np.concatenate([path.curvature, np.zeros(extra)])
+    s, _ = _stations_and_speeds(curvature, frames, speed, seed, stops, frame_period)
+    return float(s[-1] - s[0])
+
+
+def _stations_and_speeds(
+    curvature: NDArray[np.float64], frames: int, speed: float, seed: int, stops: bool, frame_period: float
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Path station at each frame, and the speed profile at every path sample (of ``curvature``)."""
+    stop_at, dwell = (
+        _stops(len(curvature), np.random.default_rng([seed, 7]))
+        if stops
+        else (np.zeros(0, np.int64), np.zeros(0))
+    )
+    v = _speed_profile(curvature, speed, np.random.default_rng([seed, 4]), stop_at)
+    return _frame_stations(v, np.arange(frames) * frame_period, stop_at, dwell), v
+
+
 def _speed_profile(
-    scene: StreetScene,
+    path_curvature: NDArray[np.float64],
     speed: float,
     rng: np.random.Generator,
     stops: NDArray[np.int64] | None = None,
@@ -76,14 +98,14 @@ def _speed_profile(
     """Speed (m/s) at every road sample: random cruising speeds between 0.5x and 1.5x ``speed``,
     slowed for curves (lateral acceleration <= 2 m/s^2), zero at the ``stops`` samples, and limited to
     gentle acceleration/braking (so the car brakes into each stop and pulls away from it)."""
-    n = len(scene.road.xy)
+    n = len(path_curvature)
     stations = np.arange(n) * ROAD_STEP
     knots, targets = [0.0], [speed * rng.uniform(0.5, 1.5)]
     while knots[-1] < stations[-1]:  # drawn in order along the road: a longer road starts the same way
         knots.append(knots[-1] + rng.uniform(60.0, 250.0))
         targets.append(speed * rng.uniform(0.5, 1.5))
     v = np.interp(stations, knots, targets)
-    v = np.minimum(v, np.sqrt(2.0 / np.maximum(np.abs(scene.road.curvature), 1e-6)))
+    v = np.minimum(v, np.sqrt(2.0 / np.maximum(np.abs(path_curvature), 1e-6)))
     if stops is not None:
         v[stops] = 0.0
     accelerate, brake = 1.2, 2.0

@@ -63,9 +63,7 @@ def make_walk(
     """The walker's poses at ``frames`` frames ``frame_period`` s apart, starting at :data:`PREROLL`
     on the road; ``height`` (m) overrides the drawn hand height (:func:`hand_height`)."""
     times = np.arange(frames) * frame_period
-    fine = np.arange(0.0, times[-1] + 2.0 * FINE_STEP, FINE_STEP)
-    gate = _pauses(np.random.default_rng([seed, 21]), fine[-1])
-    pace = _pace(np.random.default_rng([seed, 20]), fine[-1])
+    fine, gate, pace = _gait(seed, times)
     walked = _integral(pace(fine) * gate(fine))
     cadence = 1.75 + 0.4 * (pace(fine) - PACE[0]) / (PACE[1] - PACE[0])  # steps per second
     step_phase = 2.0 * math.pi * _integral(cadence * gate(fine))
@@ -93,6 +91,22 @@ def make_walk(
     z = ground + hand + drift + bob * walking * np.sin(phase)
     poses[:, :3, 3] = np.column_stack([xy, z])
     return Drive(stations, pace(times) * walking, poses)
+
+
+def walk_travel(*, frames: int, seed: int, frame_period: float) -> float:
+    """How far (m) the walker of :func:`make_walk` gets from the first frame to the last, whatever
+    the path (what a route is sized by)."""
+    times = np.arange(frames) * frame_period
+    fine, gate, pace = _gait(seed, times)
+    return float(np.interp(times[-1], fine, _integral(pace(fine) * gate(fine))))
+
+
+def _gait(seed: int, times: NDArray[np.float64]) -> tuple[NDArray[np.float64], Signal, Signal]:
+    """The fine time grid, the pause gate and the pace of a walk over ``times``."""
+    fine = np.arange(0.0, times[-1] + 2.0 * FINE_STEP, FINE_STEP)
+    gate = _pauses(np.random.default_rng([seed, 21]), fine[-1])
+    pace = _pace(np.random.default_rng([seed, 20]), fine[-1])
+    return fine, gate, pace
 
 
 def hand_height(seed: int) -> float:
@@ -146,12 +160,13 @@ def _pauses(rng: np.random.Generator, duration: float) -> Signal:
 def _path(
     scene: StreetScene, rng: np.random.Generator, distance: NDArray[np.float64]
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """Road stations, positions ``(N, 2)`` and headings where the walker is after walking ``distance``
-    metres: the car's path moved right to :data:`LANE_INSET` inside the lane edge, wandering +-0.3 m
-    over tens of metres (zone changes ease in over about 10 m)."""
-    road = scene.road
-    stations = np.arange(round(PREROLL / ROAD_STEP), len(road.xy)) * ROAD_STEP
-    lane = np.array([scene.layout.profile_at(float(s)).lane_width for s in stations])
+    """Path stations, positions ``(N, 2)`` and headings where the walker is after walking ``distance``
+    metres: the car's path (the road, on the open street) moved right to :data:`LANE_INSET` inside
+    the lane edge, wandering +-0.3 m over tens of metres (zone changes ease in over about 10 m)."""
+    road = scene.path.line
+    first = round(PREROLL / ROAD_STEP)
+    stations = np.arange(first, len(road.xy)) * ROAD_STEP
+    lane = np.array([scene.layout.profile_at(float(s)).lane_width for s in scene.path.road_station[first:]])
     sigma = round(5.0 / ROAD_STEP)
     kernel = np.exp(-0.5 * (np.arange(-3 * sigma, 3 * sigma + 1) / sigma) ** 2)
     lane = np.convolve(np.pad(lane, 3 * sigma, mode="edge"), kernel / kernel.sum(), mode="valid")

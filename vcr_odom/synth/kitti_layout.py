@@ -49,6 +49,8 @@ class WrittenSequence:
     """Frames generated, of which ``frames`` were written."""
     motion: str
     """``car`` or ``handheld``."""
+    route: str = "street"
+    """Which route (:data:`~vcr_odom.synth.routes.ROUTES`) was driven."""
 
 
 def write_bin(path: Path, points: NDArray[np.float32]) -> Path:
@@ -115,6 +117,7 @@ def write_sequence(
         scene=sequence.scene_style,
         generated=sequence.frames,
         motion=sequence.motion,
+        route=sequence.route,
     )
 
 
@@ -153,6 +156,6 @@ def generate_sequence(
 
     ``options`` are :class:`SynthConfig` fields (``frames``, ``seed``, ``speed``, ``sensor``,
     ``height``, ``scene``, ``stops``, ``frame_period``, ``motion``, ``keyframes``, ``keyframe_angle``,
-    ``thin``), applied on top of ``config`` when one is given.
+    ``thin``, ``route``), applied on top of ``config`` when one is given.
     """
     return write_sequence(SynthSequence(config, **options), out_root, seq, progress)

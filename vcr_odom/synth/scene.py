@@ -9,13 +9,16 @@ from __future__ import annotations
 
 import math
 from collections import OrderedDict
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from vcr_odom.synth.layout import StreetLayout, ZoneKind
 from vcr_odom.synth.mesh import FloatArray, MeshPart, Surface
-from vcr_odom.synth.road import PREROLL, ROAD_CHUNK, ROAD_STEP, Terrain, make_road
+from vcr_odom.synth.paths import DrivePath
+from vcr_odom.synth.repeating import RepeatedRoadside
+from vcr_odom.synth.road import PREROLL, ROAD_CHUNK, ROAD_STEP, Road, Terrain, make_road
 from vcr_odom.synth.roadside import BLOCK_LENGTH, RoadsideBlock
 from vcr_odom.synth.styles import scene_style
 
@@ -50,24 +53,60 @@ def _ground_tile(layout: StreetLayout, ix: int, iy: int, rng: np.random.Generato
     return MeshPart(vertices, triangles, surface.astype(np.uint8), albedo.astype(np.float32))
 
 
-class StreetScene:
-    """The whole procedural world for one seed; hands out the geometry near given positions."""
+@dataclass(frozen=True)
+class RouteWorld:
+    """A route's street and how it is driven (:mod:`~vcr_odom.synth.routes` builds it): the road and
+    its plan, the terrain, the path the car follows, and for repeated blocks their period (m)."""
 
-    def __init__(self, seed: int, length: float, cache_chunks: int = 512, scene: str = "suburban") -> None:
+    road: Road
+    terrain: Terrain
+    layout: StreetLayout
+    path: DrivePath
+    repeat: float | None = None
+
+
+class StreetScene:
+    """The whole procedural world for one seed; hands out the geometry near given positions.
+
+    Without ``world`` it is the open street of ``length`` metres (plus its preroll), driven once; a
+    route's ``world`` gives another street and path (a loop, a figure eight, out and back, repeated
+    blocks), built in chunks the same way.
+    """
+
+    def __init__(
+        self,
+        seed: int,
+        length: float,
+        cache_chunks: int = 512,
+        scene: str = "suburban",
+        world: RouteWorld | None = None,
+    ) -> None:
         self.seed = seed
         self.style_name = scene
         style = scene_style(scene)
-        road_length = PREROLL + math.ceil(max(length, 1.0) / ROAD_CHUNK) * ROAD_CHUNK
-        self.road = make_road(np.random.default_rng([seed, 1]), road_length, style.road)
-        self.terrain = Terrain.random(np.random.default_rng([seed, 2]))
-        self.layout = StreetLayout(self.road, self.terrain, np.random.default_rng([seed, 3]), style)
+        self._repeated: RepeatedRoadside | None = None
+        if world is None:
+            road_length = PREROLL + math.ceil(max(length, 1.0) / ROAD_CHUNK) * ROAD_CHUNK
+            self.road = make_road(np.random.default_rng([seed, 1]), road_length, style.road)
+            self.terrain = Terrain.random(np.random.default_rng([seed, 2]))
+            self.layout = StreetLayout(self.road, self.terrain, np.random.default_rng([seed, 3]), style)
+            self.path = DrivePath.along(self.road)
+        else:
+            self.road = world.road
+            self.terrain = world.terrain
+            self.layout = world.layout
+            self.path = world.path
+            if world.repeat is not None:
+                rng = np.random.default_rng([seed, 10])
+                self._repeated = RepeatedRoadside(self.layout, world.repeat, rng)
         self._cache: OrderedDict[tuple[int, int, int], MeshPart] = OrderedDict()
         self._cache_chunks = cache_chunks
-        n_blocks = math.ceil(self.road.length / BLOCK_LENGTH)
+        block_length = BLOCK_LENGTH if world is None or world.repeat is None else world.repeat
+        n_blocks = math.ceil(self.road.length / block_length)
         boxes = []
         for b in range(n_blocks):
-            lo = int(b * BLOCK_LENGTH / ROAD_STEP)
-            xy = self.road.xy[lo : int((b + 1) * BLOCK_LENGTH / ROAD_STEP) + 1]
+            lo = int(b * block_length / ROAD_STEP)
+            xy = self.road.xy[lo : int((b + 1) * block_length / ROAD_STEP) + 1]
             boxes.append(np.concatenate([xy.min(0) - REACH, xy.max(0) + REACH]))
         self._block_boxes = np.array(boxes)
 
@@ -92,7 +131,9 @@ class StreetScene:
             self._cache.move_to_end(key)
             return self._cache[key]
         kind, a, b = key
-        if kind == 0:
+        if kind == 0 and self._repeated is not None:
+            part = self._repeated.block(a)
+        elif kind == 0:
             part = RoadsideBlock(self.layout, a, np.random.default_rng([self.seed, 10, a])).build()
         else:
             rng = np.random.default_rng([self.seed, 11, a + 2**20, b + 2**20])

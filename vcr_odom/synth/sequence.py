@@ -18,9 +18,11 @@ from pydantic import Field, field_validator, model_validator
 from vcr_odom.geometry import invert
 from vcr_odom.settings import Settings
 from vcr_odom.synth.calibration import KITTI_TR
-from vcr_odom.synth.drive import Drive, make_drive
-from vcr_odom.synth.handheld import MAX_SPEED, hand_height, make_walk
+from vcr_odom.synth.drive import Drive, drive_travel, make_drive
+from vcr_odom.synth.handheld import MAX_SPEED, hand_height, make_walk, walk_travel
 from vcr_odom.synth.keyframes import KEYFRAME_ANGLE, select_keyframes, thin_voxels
+from vcr_odom.synth.road import Road
+from vcr_odom.synth.routes import Route, build_route
 from vcr_odom.synth.scene import StreetScene
 from vcr_odom.synth.sensor import (
     SENSOR_MODELS,
@@ -29,7 +31,7 @@ from vcr_odom.synth.sensor import (
     MountingHeight,
     SensorConfig,
 )
-from vcr_odom.synth.styles import SCENE_STYLES
+from vcr_odom.synth.styles import SCENE_STYLES, scene_style
 
 FRAME_PERIOD = 0.1
 """Seconds between frames by default: the HDL-64E spins at 10 Hz in KITTI."""
@@ -39,7 +41,8 @@ HEIGHT_RANGE = (1.5, 2.1)
 
 class SynthConfig(Settings):
     """What a synthetic sequence is: its length, seed, speed, sensor, street style, stops, frame rate,
-    motion (a car or a walker with a handheld scanner) and what of it is kept (keyframes, thinning).
+    motion (a car or a walker with a handheld scanner), route (an open street, or one that comes
+    back) and what of it is kept (keyframes, thinning).
 
     The same configuration always gives byte-identical frames and poses (shipped weights and training
     caches were made from them; the new fields' defaults keep them so). ``sensor`` may be given as a
@@ -94,6 +97,18 @@ class SynthConfig(Settings):
         le=10.0,
         description="Voxel-thin each written cloud to one measured point (with its reflectance) per "
         "cube of this size in m (e.g. 0.3). Default: no thinning.",
+    )
+    route: Route = Field(
+        default="street",
+        description="street: an open street driven once. loop: a closed street driven about 1.25 times "
+        "round (revisits in the same direction). figure8: a street crossing itself, driven about 1.25 "
+        "times round (its crossing passed twice, 90-110 deg apart). return: out, round a turning loop at "
+        "the street's end and back in the other direction's lane past the start (revisits at 180 deg, "
+        "a lane apart; beyond the median on avenues and highways). blocks: a straight street whose "
+        "roadside repeats exactly every 30-60 m, driven once (look-alike places, no revisit). Loops "
+        "(250-1500 m round), figure eights (400-2000 m) and returns are sized to the frames and speed: "
+        "at 10 m/s and 10 Hz the first revisit comes after about 350 frames on a loop or figure eight "
+        "and 200 on a return; a walk needs about 2500 and 1000.",
     )
 
     @field_validator("sensor", mode="before")
@@ -174,9 +189,11 @@ class SynthSequence:
         self.stops = config.stops
         self.frame_period = config.frame_period
         self.motion = config.motion
+        self.route = config.route
         extras = [config.scene] if config.scene != "suburban" else []
         extras += [self.sensor.name] if self.sensor.name != "hdl64" else []
         extras += ["handheld"] if config.motion == "handheld" else []
+        extras += [config.route] if config.route != "street" else []
         self.name = "-".join([f"synth-seed{config.seed}", *extras])
         self._simulators: dict[int, LidarSimulator] = {}
 
@@ -208,7 +225,23 @@ class SynthSequence:
         # Road long enough for the fastest possible drive plus what the sensor sees beyond its end.
         fastest = self.speed * 1.5 if self.motion == "car" else MAX_SPEED
         reach = self.frames * self.frame_period * fastest + self.sensor.max_range + 60.0
-        return StreetScene(self.seed, reach, scene=self.scene_style)
+        if self.route == "street":
+            return StreetScene(self.seed, reach, scene=self.scene_style)
+        world = build_route(self.route, self.seed, scene_style(self.scene_style), reach, self._travel)
+        return StreetScene(self.seed, reach, scene=self.scene_style, world=world)
+
+    def _travel(self, path: Road) -> float:
+        """How far along ``path`` this sequence's motion goes (what routes are sized by)."""
+        if self.motion == "handheld":
+            return walk_travel(frames=self.frames, seed=self.seed, frame_period=self.frame_period)
+        return drive_travel(
+            path,
+            frames=self.frames,
+            speed=self.speed,
+            seed=self.seed,
+            stops=self.stops,
+            frame_period=self.frame_period,
+        )
 
     @cached_property
     def drive(self) -> Drive:
