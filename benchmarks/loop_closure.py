@@ -6,7 +6,9 @@ false closures, wall time and memory. Not a test: run
 
 Per sequence:
 
-- **ATE** (origin-aligned, evo) of the odometry and of the map's optimised trajectory; their ratio.
+- **ATE** (SE(3)-aligned, evo, as kiss-icp and KISS-SLAM report it) of the odometry and of the
+  map's optimised trajectory, and their ratio; the JSON also has the origin-aligned ATE (a heading
+  error at the first frame turns the whole run, and no loop can see it).
 - **Revisits**: nodes whose true position lies within 5 m of a node driven at least ``--min-loop-path``
   metres before (ground truth decides, not the odometry). They come in passages (consecutive revisit
   nodes); a passage is closed when an accepted loop starts in it. Nodes within 10 m of path of an
@@ -32,6 +34,7 @@ from rich.console import Console
 from rich.table import Table
 
 from vcr_odom.data.selection import FrameSelection
+from vcr_odom.evaluation.revisits import true_revisits
 from vcr_odom.geometry import invert, rotation_angle
 from vcr_odom.loops.pipeline import MapOutcome, MapSettings, map_sequence
 from vcr_odom.metrics.evo_errors import ate_rpe
@@ -43,19 +46,14 @@ COVER_M = 10.0
 FALSE_M, FALSE_DEG = 1.0, 3.0
 
 
-def revisit_passages(
-    gt: np.ndarray, node_positions: list[int], node_paths: list[float], min_path: float
-) -> list[list[int]]:
-    """Runs of consecutive nodes (indices into the node list) that truly revisit an earlier place."""
-    xyz = gt[node_positions, :3, 3]
-    paths = np.asarray(node_paths)
-    revisiting = []
-    for j in range(len(node_positions)):
-        earlier = paths <= paths[j] - min_path
-        if earlier.any() and np.linalg.norm(xyz[earlier] - xyz[j], axis=1).min() <= TRUE_RADIUS_M:
-            revisiting.append(j)
+def revisit_passages(gt: np.ndarray, node_positions: list[int], min_path: float) -> list[list[int]]:
+    """Runs of consecutive nodes (indices into the node list) that truly revisit an earlier place
+    (:func:`~vcr_odom.evaluation.revisits.true_revisits` on every frame's ground truth)."""
+    revisiting_frames = {pair.source for pair in true_revisits(gt, TRUE_RADIUS_M, min_path)}
     passages: list[list[int]] = []
-    for j in revisiting:
+    for j, position in enumerate(node_positions):
+        if position not in revisiting_frames:
+            continue
         if passages and j == passages[-1][-1] + 1:
             passages[-1].append(j)
         else:
@@ -75,7 +73,7 @@ def score(
     metrics = json.loads((folder / "metrics.json").read_text())
     frame_position = {f: k for k, f in enumerate(outcome.odometry.frame_indices)}
     nodes = [(frame_position[n["frame"]], n["path_m"]) for n in loops["nodes"]]
-    passages = revisit_passages(gt, [p for p, _ in nodes], [d for _, d in nodes], settings.min_loop_path)
+    passages = revisit_passages(gt, [p for p, _ in nodes], settings.min_loop_path)
     accepted = [c for c in loops["candidates"] if c["accepted"]]
     false = []
     for loop in accepted:
@@ -98,8 +96,10 @@ def score(
         bool(len(source_paths)) and np.abs(source_paths - node_paths[j]).min() <= COVER_M
         for j in revisit_nodes
     )
-    odometry_ate = ate_rpe(outcome.odometry.poses, gt).ate_trans_rmse_m
-    map_ate = ate_rpe(outcome.poses, gt).ate_trans_rmse_m
+    odometry_ate = ate_rpe(outcome.odometry.poses, gt, alignment="se3").ate_trans_rmse_m
+    map_ate = ate_rpe(outcome.poses, gt, alignment="se3").ate_trans_rmse_m
+    odometry_origin = ate_rpe(outcome.odometry.poses, gt).ate_trans_rmse_m
+    map_origin = ate_rpe(outcome.poses, gt).ate_trans_rmse_m
     return {
         "sequence": outcome.sequence.name,
         "frames": len(outcome.poses),
@@ -107,6 +107,8 @@ def score(
         "odometry_ate_m": odometry_ate,
         "map_ate_m": map_ate,
         "ate_ratio": map_ate / odometry_ate if odometry_ate > 0 else float("nan"),
+        "odometry_ate_origin_m": odometry_origin,
+        "map_ate_origin_m": map_origin,
         "revisit_passages": len(passages),
         "passages_closed": closed,
         "revisit_nodes": len(revisit_nodes),

@@ -22,8 +22,7 @@ EXACT = np.diag([1e4] * 3 + [1e2] * 3)
 
 
 def _node(k: int, pose: np.ndarray, path_m: float) -> Node:
-    empty = np.zeros((0, 3), np.float32)
-    return Node(position=k, frame_index=k, pose=pose, path_m=path_m, network_points=empty, cloud=empty)
+    return Node(position=k, frame_index=k, pose=pose, path_m=path_m, cloud=np.zeros((0, 3), np.float32))
 
 
 def _circle(count: int, radius: float, heading_drift_deg_per_node: float = 0.0) -> tuple[list, list]:
@@ -114,11 +113,9 @@ def sample_nodes(kitti_sample_root: Path) -> tuple[list[Node], np.ndarray]:
     """Nodes of real frames 0 and 6 (about 5 m apart) and their true relative pose."""
     from vcr_odom.data.kitti import KittiSequence
     from vcr_odom.loops.nodes import NodeRecorder
-    from vcr_odom.registration.vcr import VcrRegistrar
 
     sequence = KittiSequence(kitti_sample_root, "00")
-    network = VcrRegistrar(device="cpu")
-    recorder = NodeRecorder(network.network_input, spacing_m=1e-6)
+    recorder = NodeRecorder(spacing_m=1e-6)
     for index in (0, 6):
         recorder(index, sequence.gt_poses[index], sequence.frame(index))
     nodes = recorder.finish()

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import open3d as o3d
 from pydantic import Field
 
 from vcr_odom.data.base import LidarSequence, Points
@@ -90,7 +91,7 @@ def map_sequence(settings: MapSettings, progress: ProgressFactory | None = None)
         {"command": "map", "sequence": sequence.name, **settings.to_dict()},
         frames_selected=len(indices),
     )
-    recorder = NodeRecorder(network.network_input, settings.node_spacing, settings.node_angle)
+    recorder = NodeRecorder(settings.node_spacing, settings.node_angle)
     checkpoints = Checkpoints(
         folder,
         sequence,
@@ -239,10 +240,21 @@ def _map_from_nodes(
     voxel_map = VoxelMap(voxel_size=voxel)
     with phase("map", len(nodes)) as advance:
         for node in nodes:
-            voxel_map.add(sequence.frame(node.frame_index), poses[node.position])
+            voxel_map.add(_thinned(sequence.frame(node.frame_index), voxel / 2), poses[node.position])
             advance(node.frame_index, poses[node.position])
     phase.seconds["map"] = time.perf_counter() - started
     return voxel_map
+
+
+def _thinned(points: Points, voxel: float) -> Points:
+    """``points`` (with reflectance) on a grid of half the map's voxel first: open3d's legacy voxel
+    filter is ~5x faster than the tensor one the map bins with (anchored at the origin), and the map's
+    own binning then sees ~10x fewer points."""
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(points[:, :3], dtype=np.float64)))
+    reflectance = points[:, 3] if points.shape[1] > 3 else np.zeros(len(points))
+    cloud.colors = o3d.utility.Vector3dVector(np.repeat(np.asarray(reflectance, np.float64)[:, None], 3, 1))
+    down = cloud.voxel_down_sample(voxel)
+    return np.column_stack([np.asarray(down.points), np.asarray(down.colors)[:, 0]]).astype(np.float32)
 
 
 def _write_odometry(unit: Path, run: OdometryRun, sequence: LidarSequence) -> None:

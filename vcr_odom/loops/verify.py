@@ -1,6 +1,6 @@
 """A loop candidate registered without the odometry's translation, polished, and judged.
 
-Registration: VCR-Net on the two nodes' network points, the later one turned by the odometry's
+Registration: VCR-Net on the two nodes' clouds, the later one turned by the odometry's
 relative rotation first (the network is trained on headings within +-30 deg; the odometry's heading
 drift is a few degrees, so any revisit heading, opposite directions included, comes within reach).
 The polish: point-to-plane ICP on the nodes' 1 m voxel clouds, from the network's estimate and from
@@ -91,7 +91,7 @@ class LoopVerifier:
         decision = LoopDecision(candidate, source.frame_index, target.frame_index)
         target_frame, target_cloud = self._target(candidate.target, target)
         turn = make_transform(candidate.prior[:3, :3], np.zeros(3))
-        turned = (source.network_points @ turn[:3, :3].T).astype(np.float32)
+        turned = (self.network.network_input(source.cloud) @ turn[:3, :3].T).astype(np.float32)
         network = self.network.register(self.network.prepare(turned), target_frame)
         source_cloud = _o3d_cloud(source.cloud)
         starts = {"network": network.transform @ turn, "odometry": candidate.prior}
@@ -147,7 +147,8 @@ class LoopVerifier:
 
     def _target(self, index: int, node: Node) -> tuple[VcrFrame, o3d.geometry.PointCloud]:
         if index not in self._targets:
-            self._targets[index] = (self.network.prepare(node.network_points), _o3d_cloud(node.cloud))
+            points = self.network.network_input(node.cloud)
+            self._targets[index] = (self.network.prepare(points), _o3d_cloud(node.cloud))
         return self._targets[index]
 
 
