@@ -19,13 +19,13 @@ from vcr_odom.data.selection import FrameSelection
 from vcr_odom.errors import ConfigError
 from vcr_odom.evaluation.compare import DEFAULT_BASELINES, CompareSettings, Comparison, run_comparison
 from vcr_odom.evaluation.pairs import PAIR_KINDS
-from vcr_odom.odometry.factory import parse_method_spec
+from vcr_odom.loops.spec import parse_row_spec
 
 
 def _check_specs(ctx: click.Context, param: click.Parameter, specs: tuple[str, ...]) -> tuple[str, ...]:
     for spec in specs:
         try:
-            parse_method_spec(spec)
+            parse_row_spec(spec)
         except ConfigError as error:
             raise click.BadParameter(str(error), ctx=ctx, param=param) from error
     return specs
@@ -57,7 +57,7 @@ def reject_bad_combinations(ctx: click.Context, protocol: str, specs: tuple[str,
     callback=_check_specs,
     help="A method as run spells it (vcr = VCR-Net with its default polish, vcr+none = alone, "
     "fpfh+icp, kiss-slam = KISS-SLAM with its loop closures, from the optional extra "
-    f"vcr-odom[slam], ...); repeat for several. Default: {', '.join(DEFAULT_BASELINES)}.",
+    "vcr-odom[slam], vcr+loops = vcr then vcr-odom map's loop closure, ...); repeat for several. Default: {', '.join(DEFAULT_BASELINES)}.",
 )
 @click.option(
     "--protocol",

@@ -18,7 +18,8 @@ from vcr_odom.cli.progress import EXIT_CODES_HELP, console, exit_interrupted, fr
 from vcr_odom.cli.tables import report_table
 from vcr_odom.data.selection import FrameSelection
 from vcr_odom.errors import ConfigError
-from vcr_odom.odometry.factory import DEFAULT_GLOBAL_POLISH, GLOBAL_METHODS, parse_method_spec
+from vcr_odom.loops.spec import parse_row_spec
+from vcr_odom.odometry.factory import DEFAULT_GLOBAL_POLISH, GLOBAL_METHODS
 from vcr_odom.odometry.polish import POLISHES
 from vcr_odom.odometry.run import RunSettings, run_sequence
 from vcr_odom.registration import METHOD_NAMES
@@ -35,7 +36,7 @@ def reject_unused_options(ctx: click.Context, specs: Iterable[str]) -> None:
     """A VCR-Net option given for methods that are not VCR-Net, or ``--consult`` without a polished
     global method, would be silently ignored: a usage error instead, before any work."""
     try:
-        parsed = [parse_method_spec(spec) for spec in specs]
+        parsed = [parse_row_spec(spec) for spec in specs]
     except ConfigError:
         return  # the method itself is the mistake; its own check says so
     unused = []

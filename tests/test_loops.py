@@ -199,3 +199,25 @@ def test_map_interrupted_after_the_odometry_keeps_the_odometry_marked_partial(
     assert "interrupted" in marker["reason"].lower()
     assert len(np.loadtxt(folder / "trajectory_kitti.txt")) == 8
     assert not (folder / "map.ply").exists()
+
+
+def test_compare_puts_a_mapped_row_beside_its_odometry(small_synthetic_root: Path, tmp_path: Path) -> None:
+    args = [
+        "compare",
+        "--data-root",
+        str(small_synthetic_root),
+        "--seq",
+        "00",
+        "--results-dir",
+        str(tmp_path),
+    ]
+    result = CliRunner().invoke(cli, [*args, "-b", "icp", "-b", "icp+loops"])
+    assert result.exit_code == 0, result.output
+    (folder,) = [p for p in tmp_path.iterdir() if p.name.startswith("20")]
+    rows = json.loads((folder / "compare.json").read_text())
+    assert set(rows) == {"icp", "icp+loops"}
+    assert (folder / "icp+loops" / "loops.json").is_file()
+    mapped = np.loadtxt(folder / "icp+loops" / "trajectory_kitti.txt")
+    assert np.allclose(mapped, np.loadtxt(folder / "icp" / "trajectory_kitti.txt"), atol=1e-9)  # no revisits
+    bad = CliRunner().invoke(cli, [*args, "-b", "nope+loops"])
+    assert bad.exit_code == 2 and "unknown method 'nope'" in bad.output

@@ -21,10 +21,12 @@ from vcr_odom.data.selection import FrameSelection
 from vcr_odom.errors import ConfigError, MissingExtraError
 from vcr_odom.evaluation.pairs import PAIR_KINDS, PairProtocolResult, evaluate_pair_protocol, pair_sets
 from vcr_odom.evaluation.pairs_polish import PAIR_POLISHES
+from vcr_odom.loops.pipeline import LoopOptions, loop_network, map_and_save
+from vcr_odom.loops.spec import canonical_row, split_loops
 from vcr_odom.metrics import EvaluationReport
 from vcr_odom.model.weights import default_weights_path, read_weights
 from vcr_odom.odometry.chain import Consult, Odometry
-from vcr_odom.odometry.factory import DEFAULT_CONSULT, build_odometry, canonical_spec
+from vcr_odom.odometry.factory import DEFAULT_CONSULT, build_odometry
 from vcr_odom.odometry.limits import InitialGuess
 from vcr_odom.odometry.loop import OdometryRun
 from vcr_odom.odometry.outputs import ground_truth_for, run_summary
@@ -33,6 +35,7 @@ from vcr_odom.plots import plot_trajectories
 from vcr_odom.preprocess import PreprocessConfig
 from vcr_odom.registration import SEQUENTIAL_METHODS
 from vcr_odom.registration.base import SequentialOdometry
+from vcr_odom.registration.vcr import VcrRegistrar
 from vcr_odom.results import (
     check_output_folder,
     create_result_folder,
@@ -95,7 +98,15 @@ class Unavailable:
     error: MissingExtraError
 
 
-Method = Odometry | SequentialOdometry | Unavailable
+@dataclass(frozen=True)
+class Mapped:
+    """A ``+loops`` row: ``odometry``, then ``vcr-odom map``'s loop closure with ``network``."""
+
+    odometry: Odometry | SequentialOdometry
+    network: VcrRegistrar
+
+
+Method = Odometry | SequentialOdometry | Unavailable | Mapped
 
 
 @dataclass
@@ -123,7 +134,7 @@ def run_comparison(settings: CompareSettings, progress: ProgressFactory | None =
     made and any method runs. The folder's own unit (``compare.json``, ``pairs.json``, the overlay
     plot and the marker) is published at the end, or, stopped part-way, with a ``partial`` marker.
     """
-    specs = list(dict.fromkeys(canonical_spec(s) for s in settings.methods))  # a bad name fails here
+    specs = list(dict.fromkeys(canonical_row(s) for s in settings.methods))  # a bad name fails here
     check_output_folder(settings.results_dir, "--results-dir")
     sequence = settings.selection.open()
     indices = settings.selection.indices(sequence)
@@ -160,17 +171,22 @@ def run_comparison(settings: CompareSettings, progress: ProgressFactory | None =
 
 
 def _build(spec: str, settings: CompareSettings) -> Method:
-    """The odometry called ``spec``, or :class:`Unavailable` where it is an optional method that is
-    not installed (its row says so; the other methods still run)."""
+    """The odometry called ``spec`` (with the loop network for a ``+loops`` row), or
+    :class:`Unavailable` where it is an optional method that is not installed (its row says so; the
+    other methods still run)."""
+    base, mapped = split_loops(spec)
     try:
-        return build_odometry(
-            spec,
+        odometry = build_odometry(
+            base,
             initial_guess=settings.initial_guess,
             consult=settings.consult,
-            **settings.method_options(spec),
+            **settings.method_options(base),
         )
     except MissingExtraError as error:
         return Unavailable(error)
+    if not mapped:
+        return odometry
+    return Mapped(odometry, loop_network(settings.weights, settings.device, settings.vcr_points))
 
 
 def pair_kinds_to_run(settings: CompareSettings, sequence: LidarSequence) -> tuple[str, ...]:
@@ -211,9 +227,26 @@ def compare_methods(
         if isinstance(odometry, Unavailable):
             outcomes.append(MethodOutcome(spec, True, _no_run(spec), None, odometry.error.status))
             continue
-        needs_guess = odometry.registrar.needs_initial_guess if isinstance(odometry, Odometry) else True
         on_saved = partial(point_latest_at, folder.parent, folder)
         (folder / spec).mkdir(exist_ok=True)  # no marker until its first unit; the comparison's says partial
+        if isinstance(odometry, Mapped):
+            mapped = map_and_save(
+                sequence,
+                odometry.odometry,
+                odometry.network,
+                frame_indices,
+                folder / spec,
+                LoopOptions(),
+                progress=progress,
+                on_saved=on_saved,
+            )
+            outcomes.append(
+                MethodOutcome(spec, _needs_guess(odometry.odometry), mapped.mapped_run, mapped.report)
+            )
+            if mapped.odometry.interrupted:
+                break
+            continue
+        needs_guess = _needs_guess(odometry)
         with _progress(progress, spec, len(frame_indices)) as advance:
             run, report = run_and_save(
                 sequence, odometry, frame_indices, folder / spec, progress=advance, on_saved=on_saved
@@ -222,6 +255,10 @@ def compare_methods(
         if run.interrupted:
             break
     return outcomes
+
+
+def _needs_guess(odometry: Odometry | SequentialOdometry) -> bool:
+    return odometry.registrar.needs_initial_guess if isinstance(odometry, Odometry) else True
 
 
 def _no_run(spec: str) -> OdometryRun:

@@ -13,6 +13,7 @@ import dataclasses
 import resource
 import sys
 import time
+from collections.abc import Callable, Sequence
 from contextlib import nullcontext
 from dataclasses import dataclass
 from pathlib import Path
@@ -37,10 +38,12 @@ from vcr_odom.loops.nodes import NODE_SPACING_DEG, NODE_SPACING_M, Node, NodeRec
 from vcr_odom.loops.verify import LoopDecision, LoopVerifier
 from vcr_odom.mapping import VoxelMap
 from vcr_odom.metrics import EvaluationReport, evaluate
+from vcr_odom.odometry.chain import Odometry
 from vcr_odom.odometry.loop import OdometryRun, run_odometry
 from vcr_odom.odometry.outputs import Checkpoints, ground_truth_for, run_summary, save_trajectory
 from vcr_odom.odometry.run import ProgressFactory, RunSettings, method_for
 from vcr_odom.plots import plot_trajectories
+from vcr_odom.registration.base import SequentialOdometry
 from vcr_odom.registration.vcr import VcrRegistrar
 from vcr_odom.results import (
     check_output_folder,
@@ -51,11 +54,11 @@ from vcr_odom.results import (
     remove_result_folder,
     write_json,
 )
+from vcr_odom.settings import Settings
 
 
-class MapSettings(RunSettings):
-    """Everything ``vcr-odom map`` is told: ``run``'s options (without ``--save-map``: the map is
-    always written into the folder) and the loop closure's."""
+class LoopOptions(Settings):
+    """The loop closure's settings (``map``'s options beyond ``run``'s)."""
 
     node_spacing: float = Field(default=NODE_SPACING_M, gt=0, description="Metres between graph nodes.")
     node_angle: float = Field(default=NODE_SPACING_DEG, gt=0, description="A turn that makes a node (deg).")
@@ -63,6 +66,12 @@ class MapSettings(RunSettings):
     min_loop_path: float = Field(default=MIN_LOOP_PATH_M, gt=0)
     attempt_spacing: float = Field(default=ATTEMPT_SPACING_M, ge=0)
     loops: bool = Field(default=True, description="False: the odometry and its map only (a baseline).")
+    map_voxel: float = Field(default=0.5, ge=0.05)
+
+
+class MapSettings(RunSettings, LoopOptions):
+    """Everything ``vcr-odom map`` is told: ``run``'s options (without ``--save-map``: the map is
+    always written into the folder) and the loop closure's."""
 
 
 @dataclass
@@ -76,30 +85,68 @@ class MapOutcome:
     odometry_report: EvaluationReport | None
     seconds: dict[str, float]
 
+    @property
+    def mapped_run(self) -> OdometryRun:
+        """The odometry's run with the optimised poses, its loop count and the whole map's wall time
+        (a comparison's row: its frames/s is the map's, not the odometry's)."""
+        closures = {"loop_closures": sum(d.accepted for d in self.decisions)}
+        return dataclasses.replace(
+            self.odometry,
+            method=f"{self.odometry.method}+loops",
+            poses=self.poses,
+            slam=closures,
+            wall_seconds=sum(self.seconds.values()),
+        )
+
+
+def loop_network(weights: Path | None, device: str, points: int | None) -> VcrRegistrar:
+    """The network that registers loop candidates (loaded before any folder: a bad file fails first)."""
+    return VcrRegistrar(weights=weights, device=device, num_points=points)
+
 
 def map_sequence(settings: MapSettings, progress: ProgressFactory | None = None) -> MapOutcome:
-    """Check everything, run the odometry with a node recorder, close loops, optimise, write the folder."""
+    """Check everything, build the odometry and the loop network, and map into a new result folder."""
     check_output_folder(settings.results_dir, "--results-dir")
     sequence = settings.selection.open()
     indices = settings.selection.indices(sequence)
     odometry = method_for(settings)
-    network = VcrRegistrar(weights=settings.weights, device=settings.device, num_points=settings.vcr_points)
-    spec = settings.spec
+    network = loop_network(settings.weights, settings.device, settings.vcr_points)
     folder = create_result_folder(
         settings.results_dir,
-        f"map_{sequence.name}_{spec}",
+        f"map_{sequence.name}_{settings.spec}",
         {"command": "map", "sequence": sequence.name, **settings.to_dict()},
         frames_selected=len(indices),
     )
-    recorder = NodeRecorder(settings.node_spacing, settings.node_angle)
-    checkpoints = Checkpoints(
-        folder,
+    return map_and_save(
         sequence,
-        len(indices),
-        method=f"{spec} (odometry)",
+        odometry,
+        network,
+        indices,
+        folder,
+        LoopOptions(**{k: getattr(settings, k) for k in LoopOptions.model_fields}),
+        progress=progress,
         on_saved=lambda: point_latest_at(settings.results_dir, folder),
     )
+
+
+def map_and_save(
+    sequence: LidarSequence,
+    odometry: Odometry | SequentialOdometry,
+    network: VcrRegistrar,
+    indices: Sequence[int],
+    folder: Path,
+    options: LoopOptions,
+    *,
+    progress: ProgressFactory | None = None,
+    on_saved: Callable[[], Any] | None = None,
+) -> MapOutcome:
+    """Run the odometry with a node recorder, close loops, optimise and publish ``folder``'s unit
+    (see the module doc); ``folder`` is None in the outcome where nothing was kept."""
+    spec = odometry.name
+    recorder = NodeRecorder(options.node_spacing, options.node_angle)
+    checkpoints = Checkpoints(folder, sequence, len(indices), method=f"{spec} (odometry)", on_saved=on_saved)
     phase = _Phases(progress)
+    kept: Path | None = folder
     try:
         with phase(f"{spec} on {sequence.name}", len(indices)) as advance:
 
@@ -117,20 +164,20 @@ def map_sequence(settings: MapSettings, progress: ProgressFactory | None = None)
             )
             if not run.frame_indices:
                 remove_result_folder(folder)
-                folder = None
-            return MapOutcome(folder, sequence, run, run.poses, [], None, None, phase.seconds)
+                kept = None
+            return MapOutcome(kept, sequence, run, run.poses, [], None, None, phase.seconds)
         nodes = recorder.finish()
-        decisions, poses = _close_loops(settings, network, nodes, run, phase)
-        voxel_map = _map_from_nodes(sequence, nodes, poses, settings.map_voxel, phase)
+        decisions, poses = _close_loops(options, network, nodes, run, phase)
+        voxel_map = _map_from_nodes(sequence, nodes, poses, options.map_voxel, phase)
     except BaseException as error:
         checkpoints.save(f"{interruption_reason(error)} (after {checkpoints.frames_done} odometry frames)")
-        if folder is not None and not holds_trajectory(folder):
+        if not holds_trajectory(folder):
             remove_result_folder(folder)
         raise
     gt = ground_truth_for(sequence, run.frame_indices)
     report = evaluate(poses, gt) if gt is not None and len(poses) >= 2 else None
     odometry_report = evaluate(run.poses, gt) if gt is not None and len(poses) >= 2 else None
-    mapped = dataclasses.replace(run, method=f"map {spec}", poses=poses)
+    outcome = MapOutcome(folder, sequence, run, poses, decisions, report, odometry_report, phase.seconds)
     memory = {
         "frames": len(run.frame_indices),
         "nodes": len(nodes),
@@ -143,12 +190,11 @@ def map_sequence(settings: MapSettings, progress: ProgressFactory | None = None)
         _write_odometry(unit, run, sequence)
         write_json(unit / "loops.json", _loops_json(decisions, nodes))
         voxel_map.save(unit / "map.ply")
-        summary = _loop_summary(decisions)
         write_json(
             unit / "metrics.json",
             {
                 "run": run_summary(run),
-                "loops": summary,
+                "loops": _loop_summary(decisions),
                 "seconds": phase.seconds,
                 "memory": memory,
                 **(report.to_dict() if report is not None else {"ground_truth": None}),
@@ -168,9 +214,10 @@ def map_sequence(settings: MapSettings, progress: ProgressFactory | None = None)
             ],
         )
 
-    save_trajectory(folder, mapped, sequence, frames_selected=len(indices), extras=extras)
-    point_latest_at(settings.results_dir, folder)
-    return MapOutcome(folder, sequence, run, poses, decisions, report, odometry_report, phase.seconds)
+    save_trajectory(folder, outcome.mapped_run, sequence, frames_selected=len(indices), extras=extras)
+    if on_saved is not None:
+        on_saved()
+    return outcome
 
 
 class _Phases:
@@ -191,7 +238,7 @@ def _accepted(decisions: list[LoopDecision]) -> list[LoopDecision]:
 
 
 def _close_loops(
-    settings: MapSettings,
+    settings: LoopOptions,
     network: VcrRegistrar,
     nodes: list[Node],
     run: OdometryRun,
