@@ -141,6 +141,20 @@ def score(
     }
 
 
+def kiss_slam_row(outcome: MapOutcome) -> dict[str, Any]:
+    """KISS-SLAM on the map's frames: SE(3)-aligned ATE, closures, wall time."""
+    from vcr_odom.evaluation.kiss_slam import run_kiss_slam
+
+    gt = ground_truth_for(outcome.sequence, outcome.odometry.frame_indices)
+    started = time.perf_counter()
+    slam = run_kiss_slam(outcome.sequence, outcome.odometry.frame_indices)
+    return {
+        "kiss_slam_ate_m": ate_rpe(slam.poses, gt, alignment="se3").ate_trans_rmse_m,
+        "kiss_slam_closures": slam.num_closures,
+        "kiss_slam_seconds": time.perf_counter() - started,
+    }
+
+
 COLUMNS = (
     ("sequence", "sequence", "{}"),
     ("frames", "frames", "{}"),
@@ -174,6 +188,9 @@ def main() -> None:
     parser.add_argument("--sequence", type=Path, action="append", required=True, help="sequences/<id> folder")
     parser.add_argument("--stride", type=int, default=1)
     parser.add_argument("--method", default="vcr")
+    parser.add_argument(
+        "--kiss-slam", action="store_true", help="also run KISS-SLAM (vcr-odom[slam]) on the same frames"
+    )
     parser.add_argument("--json", type=Path)
     parser.add_argument("--markdown", type=Path)
     args = parser.parse_args()
@@ -189,7 +206,10 @@ def main() -> None:
             started = time.perf_counter()
             outcome = map_sequence(settings)
             map_seconds = time.perf_counter() - started
-            rows.append(score(outcome, settings, odometry_seconds, map_seconds))
+            row = score(outcome, settings, odometry_seconds, map_seconds)
+            if args.kiss_slam:
+                row.update(kiss_slam_row(outcome))
+            rows.append(row)
     table = Table(title="vcr-odom map against its odometry")
     for header, _, _ in COLUMNS:
         table.add_column(header)
