@@ -221,3 +221,24 @@ def test_compare_puts_a_mapped_row_beside_its_odometry(small_synthetic_root: Pat
     assert np.allclose(mapped, np.loadtxt(folder / "icp" / "trajectory_kitti.txt"), atol=1e-9)  # no revisits
     bad = CliRunner().invoke(cli, [*args, "-b", "nope+loops"])
     assert bad.exit_code == 2 and "unknown method 'nope'" in bad.output
+
+
+def test_map_that_cannot_write_its_map_keeps_the_trajectory_marked_partial(
+    small_synthetic_root: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from vcr_odom.mapping import VoxelMap
+
+    def disk_full(*_args: object) -> None:
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(VoxelMap, "save", disk_full)
+    result = CliRunner().invoke(
+        cli,
+        ["map", "--data-root", str(small_synthetic_root), "--seq", "00", "--results-dir", str(tmp_path)],
+    )
+    assert result.exit_code != 0
+    (folder,) = [p for p in tmp_path.iterdir() if p.name.startswith("20")]
+    marker = json.loads((folder / "result.json").read_text())
+    assert marker["status"] == "partial" and "while writing the map" in marker["reason"]
+    assert len(np.loadtxt(folder / "trajectory_kitti.txt")) == 8
+    assert not (folder / "map.ply").exists() and not (folder / "loops.json").exists()

@@ -214,7 +214,18 @@ def map_and_save(
             ],
         )
 
-    save_trajectory(folder, outcome.mapped_run, sequence, frames_selected=len(indices), extras=extras)
+    try:
+        save_trajectory(folder, outcome.mapped_run, sequence, frames_selected=len(indices), extras=extras)
+    except BaseException as error:  # e.g. a full disk writing map.ply: keep the optimised poses, say so
+        save_trajectory(
+            folder,
+            outcome.mapped_run,
+            sequence,
+            frames_selected=len(indices),
+            status="partial",
+            reason=f"{interruption_reason(error)} while writing the map, loops and scores",
+        )
+        raise
     if on_saved is not None:
         on_saved()
     return outcome
