@@ -343,6 +343,7 @@ def _loop_summary(decisions: list[LoopDecision]) -> dict[str, Any]:
     return {
         "candidates": len(decisions),
         "accepted": sum(d.accepted for d in decisions),
+        "network_input_kept_ground": sum(bool(d.scores.get("network_input_kept_ground")) for d in decisions),
         "by_outcome": reasons,
     }
 

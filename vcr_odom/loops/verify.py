@@ -15,6 +15,7 @@ end in two different fits of similar quality (an ambiguous, repetitive place).
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -22,6 +23,7 @@ import numpy as np
 import open3d as o3d
 from numpy.typing import NDArray
 
+from vcr_odom.errors import DataWarning
 from vcr_odom.geometry import Transform, invert, make_transform, rotation_angle
 from vcr_odom.loops.candidates import LoopCandidate
 from vcr_odom.loops.drift import DriftModel
@@ -85,13 +87,15 @@ class LoopVerifier:
         self.network = network
         self.drift = drift or DriftModel()
         self._targets: dict[int, tuple[VcrFrame, o3d.geometry.PointCloud]] = {}
+        self.ground_kept = 0
 
     def verify(self, candidate: LoopCandidate, nodes: list[Node]) -> LoopDecision:
         source, target = nodes[candidate.source], nodes[candidate.target]
         decision = LoopDecision(candidate, source.frame_index, target.frame_index)
+        kept_before = self.ground_kept
         target_frame, target_cloud = self._target(candidate.target, target)
         turn = make_transform(candidate.prior[:3, :3], np.zeros(3))
-        turned = (self.network.network_input(source.cloud) @ turn[:3, :3].T).astype(np.float32)
+        turned = (self._network_points(source) @ turn[:3, :3].T).astype(np.float32)
         network = self.network.register(self.network.prepare(turned), target_frame)
         source_cloud = _o3d_cloud(source.cloud)
         starts = {"network": network.transform @ turn, "odometry": candidate.prior}
@@ -115,6 +119,7 @@ class LoopVerifier:
             "correction_deg": round(correction_deg, 3),
             "bound_m": round(self.drift.translation_bound(candidate.path_m), 3),
             "bound_deg": round(self.drift.rotation_bound_deg(candidate.path_m), 3),
+            "network_input_kept_ground": self.ground_kept > kept_before,
         }
         decision.reason = self._judge(decision, fit, other, apart)
         decision.accepted = decision.reason == "accepted"
@@ -145,9 +150,19 @@ class LoopVerifier:
             )
         return "accepted"
 
+    def _network_points(self, node: Node) -> NDArray[np.float32]:
+        """The network's input from the node's cloud. A sparse sensor's 1 m cloud can hold fewer than
+        N points off the ground, and pre-processing then keeps the ground with a warning: recorded in
+        the candidate's ``network_input_kept_ground`` instead of one console line per candidate."""
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", DataWarning)
+            points = self.network.network_input(node.cloud)
+        self.ground_kept += any(issubclass(w.category, DataWarning) for w in caught)
+        return points
+
     def _target(self, index: int, node: Node) -> tuple[VcrFrame, o3d.geometry.PointCloud]:
         if index not in self._targets:
-            points = self.network.network_input(node.cloud)
+            points = self._network_points(node)
             self._targets[index] = (self.network.prepare(points), _o3d_cloud(node.cloud))
         return self._targets[index]
 
