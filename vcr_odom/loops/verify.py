@@ -39,6 +39,9 @@ POLISH_STAGES = ((3.0, 30), (1.0, 30))
 """(max correspondence distance m, iterations): coarse enough for the network's error, then fine."""
 AMBIGUITY = (1.0, 5.0, 0.1)
 """Two polished starts that end more than 1 m or 5 deg apart with fitness within 0.1 of each other."""
+PROBE_M, PROBE_RETURN_M, PROBE_FITNESS = 2.0, 0.5, 0.05
+"""The degeneracy probe: starts 2 m off along the weakest direction must end within 0.5 m, unless
+their fit is worse by more than 0.05."""
 EFFECTIVE_POINTS = 50.0
 """Independent points behind a loop's uncertainty: voxel points are correlated, so the ICP Hessian of
 all of them would make a loop ~100x more certain than the odometry it corrects."""
@@ -122,6 +125,8 @@ class LoopVerifier:
             "network_input_kept_ground": self.ground_kept > kept_before,
         }
         decision.reason = self._judge(decision, fit, other, apart)
+        if decision.reason == "accepted":
+            decision.reason = self._probe(decision, source_cloud, target_cloud, fit)
         decision.accepted = decision.reason == "accepted"
         if decision.accepted:
             decision.information = _information(source_cloud, target_cloud, measured, fit.inlier_rmse)
@@ -147,6 +152,34 @@ class LoopVerifier:
             return (
                 f"rejected: ambiguous: the two starts end {scores['starts_apart_m']:.1f} m apart with "
                 f"fitness {fit.fitness:.2f} and {other.fitness:.2f}"
+            )
+        return "accepted"
+
+    def _probe(
+        self,
+        decision: LoopDecision,
+        source: o3d.geometry.PointCloud,
+        target: o3d.geometry.PointCloud,
+        fit: Any,
+    ) -> str:
+        """Starts pushed :data:`PROBE_M` both ways along the fit's weakest translation must come back:
+        along a street seen by a narrow field of view, ICP slides as far as it is pushed, and a loop
+        there would pin the map at a place the scans cannot tell apart."""
+        measured = np.asarray(decision.measured)
+        direction = _weakest_translation(source, target, measured)
+        worst = 0.0
+        for sign in (1.0, -1.0):
+            start = measured.copy()
+            start[:3, 3] += sign * PROBE_M * direction
+            ended = _polish(source, target, start)
+            if ended.fitness >= fit.fitness - PROBE_FITNESS:
+                away = invert(np.asarray(ended.transformation)) @ measured
+                worst = max(worst, float(np.linalg.norm(away[:3, 3])))
+        decision.scores["probe_m"] = round(worst, 3)
+        if worst > PROBE_RETURN_M:
+            return (
+                f"rejected: degenerate: a start {PROBE_M:g} m along the weakest direction ends "
+                f"{worst:.2f} m away with as good a fit"
             )
         return "accepted"
 
@@ -184,6 +217,22 @@ def _polish(
         )
         transform = np.asarray(result.transformation)
     return result
+
+
+def _weakest_translation(
+    source: o3d.geometry.PointCloud, target: o3d.geometry.PointCloud, transform: Transform
+) -> NDArray[np.float64]:
+    """The unit translation the fit constrains least (the translation block of the ICP Hessian with
+    rotation eliminated: its eigenvector of the smallest eigenvalue), in the target frame."""
+    hessian = np.asarray(
+        o3d.pipelines.registration.get_information_matrix_from_point_clouds(
+            source, target, POLISH_STAGES[-1][0], transform
+        )
+    )
+    rotation, cross, translation = hessian[:3, :3], hessian[:3, 3:], hessian[3:, 3:]
+    reduced = translation - cross.T @ np.linalg.pinv(rotation) @ cross
+    _, vectors = np.linalg.eigh(reduced)
+    return vectors[:, 0]
 
 
 def _information(
