@@ -56,6 +56,9 @@ from vcr_odom.results import (
 )
 from vcr_odom.settings import Settings
 
+MAP_SCAN_SPACING_M = 6.0
+"""Path between the scans map.ply is built from: every other node at the default spacing."""
+
 
 class LoopOptions(Settings):
     """The loop closure's settings (``map``'s options beyond ``run``'s)."""
@@ -293,12 +296,16 @@ def _close_loops(
 def _map_from_nodes(
     sequence: LidarSequence, nodes: list[Node], poses: np.ndarray, voxel: float, phase: _Phases
 ) -> VoxelMap:
-    """The map from each node's scan at its optimised pose (read again, in order: a recording streams)."""
+    """The map from node scans at their optimised poses, one every :data:`MAP_SCAN_SPACING_M` of path
+    (read again, in order: a recording streams). A place stays in a 60 m scan for many of them."""
     started = time.perf_counter()
     voxel_map = VoxelMap(voxel_size=voxel)
+    last_path = -np.inf
     with phase("map", len(nodes)) as advance:
         for node in nodes:
-            voxel_map.add(_thinned(sequence.frame(node.frame_index), voxel / 2), poses[node.position])
+            if node is nodes[-1] or node.path_m - last_path >= MAP_SCAN_SPACING_M:
+                voxel_map.add(_thinned(sequence.frame(node.frame_index), voxel / 2), poses[node.position])
+                last_path = node.path_m
             advance(node.frame_index, poses[node.position])
     phase.seconds["map"] = time.perf_counter() - started
     return voxel_map
