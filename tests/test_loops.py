@@ -242,3 +242,15 @@ def test_map_that_cannot_write_its_map_keeps_the_trajectory_marked_partial(
     assert marker["status"] == "partial" and "while writing the map" in marker["reason"]
     assert len(np.loadtxt(folder / "trajectory_kitti.txt")) == 8
     assert not (folder / "map.ply").exists() and not (folder / "loops.json").exists()
+
+
+def test_a_node_with_an_empty_scan_is_rejected_not_an_error(sample_nodes) -> None:
+    import dataclasses
+
+    from vcr_odom.loops.verify import LoopVerifier
+    from vcr_odom.registration.vcr import VcrRegistrar
+
+    nodes, truth = sample_nodes
+    empty = [nodes[0], dataclasses.replace(nodes[1], cloud=np.zeros((0, 3), np.float32))]
+    decision = LoopVerifier(VcrRegistrar(device="cpu")).verify(_candidate(truth, np.eye(4), 60.0), empty)
+    assert not decision.accepted and decision.reason.startswith("rejected: too few points")

@@ -35,6 +35,8 @@ MAX_INLIER_RMSE_M = 0.55
 """Overlap and fit at the fine stage's 1 m correspondence distance on 1 m voxels. Real KITTI frames
 5-10 m apart: fitness 0.84-0.91, RMSE 0.43-0.47 m (1 m voxels quantise); the same frames aligned
 30 m off along the street, or turned round: fitness 0.29-0.39."""
+MIN_CLOUD_POINTS = 50
+"""Fewer 1 m voxels than this in either node cloud: nothing to register (a blocked or empty scan)."""
 POLISH_STAGES = ((3.0, 30), (1.0, 30))
 """(max correspondence distance m, iterations): coarse enough for the network's error, then fine."""
 AMBIGUITY = (1.0, 5.0, 0.1)
@@ -95,6 +97,9 @@ class LoopVerifier:
     def verify(self, candidate: LoopCandidate, nodes: list[Node]) -> LoopDecision:
         source, target = nodes[candidate.source], nodes[candidate.target]
         decision = LoopDecision(candidate, source.frame_index, target.frame_index)
+        if min(len(source.cloud), len(target.cloud)) < MIN_CLOUD_POINTS:  # an empty or near-empty scan
+            decision.reason = f"rejected: too few points ({len(source.cloud)}, {len(target.cloud)})"
+            return decision
         kept_before = self.ground_kept
         target_frame, target_cloud = self._target(candidate.target, target)
         turn = make_transform(candidate.prior[:3, :3], np.zeros(3))
