@@ -1,5 +1,5 @@
 """The terminal side of every command: the console, a progress bar for the frame loop, warnings as
-one line each, and the exit codes (documented in ``vcr-odom --help`` and the README)."""
+one line each, and the exit codes (documented in ``vcr-odom --help`` and docs/usage.md)."""
 
 from __future__ import annotations
 

@@ -32,7 +32,7 @@ def cores_shared_by(workers: int) -> Iterator[None]:
 
     Why: with the network on every pair, one thread encodes the next frame while another registers
     the current pair; each asking torch for every core left the two fighting over them (on two cores,
-    one torch thread each ran 15 % more frames a second; README "Benchmarks and speed")."""
+    one torch thread each ran 15 % more frames a second; docs/results.md "Benchmarks and speed")."""
     previous = torch.get_num_threads()
     torch.set_num_threads(max(1, previous // max(1, workers)))
     try:

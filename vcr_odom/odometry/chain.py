@@ -124,7 +124,7 @@ class Odometry:
     @property
     def prepare_ahead(self) -> bool:
         """Whether the per-frame work gains from running in a second thread: not where it is kiss-icp's
-        (its C++ holds Python's GIL, so a thread only adds switching; README "Benchmarks and speed")."""
+        (its C++ holds Python's GIL, so a thread only adds switching; docs/results.md "Benchmarks and speed")."""
         return self.polish is None or self.polish.prepare_ahead
 
     @property

@@ -16,12 +16,12 @@ from vcr_odom.registration.base import Registrar, SequentialOdometry
 
 GLOBAL_METHODS = ("vcr", "fpfh")
 DEFAULT_GLOBAL_POLISH = "kiss-icp"
-"""The polish a global method gets unless the spec names one (README "Choosing the polish" has the
+"""The polish a global method gets unless the spec names one (docs/usage.md "Choosing the polish" has the
 measurements behind it); local methods (ICP, kiss-icp) get none."""
 
 DEFAULT_CONSULT = "on-doubt"
 """A polished global method asks its registrar where the motion prior's polished result is in doubt:
-as accurate as asking on every pair wherever measured (README "Benchmarks and speed"), at a fraction of the work."""
+as accurate as asking on every pair wherever measured (docs/results.md "Benchmarks and speed"), at a fraction of the work."""
 
 POLISHED_VCR_PASSES = 1
 """VCR-Net passes per pair when a polish refines the estimate: the polish refines the residual a

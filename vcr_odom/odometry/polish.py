@@ -4,7 +4,7 @@ A global method (VCR-Net, FPFH+RANSAC) needs no motion prior but is only decimet
 method (ICP, kiss-icp) is centimetre-accurate but only when started near the answer. Chained, the
 global estimate is the local method's start. Each polish also keeps a second start (the motion
 prior), because a global estimate that is metres off on one pair lies outside the local basin where
-the constant-velocity guess often does not; README "Choosing the polish" has the measurements.
+the constant-velocity guess often does not; docs/usage.md "Choosing the polish" has the measurements.
 """
 
 from __future__ import annotations
@@ -173,7 +173,7 @@ def _icp_result(result: RegistrationResult, start: str) -> PolishResult:
 POLISH_CONVERGENCE = 1e-3
 """kiss-icp's registration stops when its update is below this (kiss-icp's own default: 1e-4, which
 the baseline keeps). On the sample the polish is as accurate at 1e-3, with about 30 % less CPU a frame;
-README "Benchmarks and speed" has the figures, kiss-icp's own at 1e-3 beside them."""
+docs/results.md "Benchmarks and speed" has the figures, kiss-icp's own at 1e-3 beside them."""
 
 
 def polish_kiss_config() -> KISSConfig:

@@ -29,7 +29,7 @@ class FpfhPrepared:
 class FpfhRansac(Settings):
     """FPFH + RANSAC (open3d), deterministic for ``seed``; ``initial_guess`` is ignored.
 
-    Why these defaults (README "Baselines" has the figures): ``voxel_size=0.5`` m, since coarser
+    Why these defaults (docs/results.md has the figures): ``voxel_size=0.5`` m, since coarser
     grids lose accuracy faster than they save time; normals over two voxels and FPFH over five
     (large enough to see a car or a facade corner, the usual open3d choice); ``inlier_distance`` half
     a voxel, because hypotheses are scored by inlier count and a looser gate lets many slightly-off

@@ -58,7 +58,7 @@ def too_few_points(
 class Open3dIcp(Settings):
     """open3d ``registration_icp`` on voxel-down-sampled frames.
 
-    Why these defaults (README "Baselines" has the figures): ``voxel_size=0.5`` m keeps the accuracy
+    Why these defaults (docs/results.md has the figures): ``voxel_size=0.5`` m keeps the accuracy
     of finer grids at a fraction of the points; ``max_correspondence_distance=1.0`` m covers a car's
     motion between two 10 Hz scans from the identity; 100 iterations with relative fitness/RMSE 1e-6
     is "converged", 10 is the paper's ICP(10). Point-to-point is worse on real scans, where the ring
