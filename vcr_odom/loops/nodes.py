@@ -15,12 +15,11 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-import open3d as o3d
 from numpy.typing import NDArray
 
 from vcr_odom.data.base import Points
 from vcr_odom.geometry import Transform, invert, rotation_angle
-from vcr_odom.preprocess import crop_range
+from vcr_odom.registration.open3d_icp import prepare_cloud
 
 NODE_SPACING_M = 3.0
 NODE_SPACING_DEG = 20.0
@@ -53,11 +52,10 @@ def voxel_cloud(
     """``points`` cropped to 1-``max_range`` m and voxel-down-sampled, as float32 xyz. A dense scan
     is first taken every k-th point down to ~:data:`CLOUD_INPUT_POINTS` (a 1 m voxel of a 64-beam scan
     holds tens of points): a third of the cost, recorded at every node during the odometry."""
-    cropped = crop_range(points, 1.0, max_range)
-    if len(cropped) > 2 * CLOUD_INPUT_POINTS:
-        cropped = cropped[:: len(cropped) // CLOUD_INPUT_POINTS]
-    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(cropped[:, :3].astype(np.float64)))
-    return np.asarray(cloud.voxel_down_sample(voxel).points, dtype=np.float32)
+    if len(points) > 2 * CLOUD_INPUT_POINTS:
+        points = points[:: len(points) // CLOUD_INPUT_POINTS]
+    cloud = prepare_cloud(points, 1.0, max_range, voxel, normals=False)
+    return np.asarray(cloud.points, dtype=np.float32)
 
 
 class NodeRecorder:
