@@ -1,5 +1,7 @@
 """What a regular (non-editable) install contains: every package, the CLI, and the shipped weights."""
 
+import os
+import re
 import shutil
 import subprocess
 import sys
@@ -15,7 +17,14 @@ def test_every_library_package_is_installed_and_cli_is_not_top_level():
     on_disk = {
         ".".join(init.parent.relative_to(ROOT).parts) for init in (ROOT / "vcr_odom").rglob("__init__.py")
     }
-    assert on_disk | {"vcr_odom.cli", "vcr_odom.weights"} == set(setuptools["packages"])
+    weight_folders = {
+        f"vcr_odom.weights.{folder.name}"
+        for folder in (ROOT / "weights").iterdir()
+        if folder.is_dir() and folder.name != "__pycache__"
+    }
+    assert weight_folders, "weights/legacy and weights/training are expected"
+    expected = on_disk | {"vcr_odom.cli", "vcr_odom.weights"} | weight_folders
+    assert expected == set(setuptools["packages"])
     assert setuptools["package-dir"] == {"vcr_odom.cli": "cli", "vcr_odom.weights": "weights"}
 
 
@@ -28,12 +37,25 @@ def test_the_wheel_carries_the_shipped_weights_and_the_cli(tmp_path: Path) -> No
         shutil.copy2(ROOT / name, source / name)
     for name in ("vcr_odom", "cli", "weights"):
         shutil.copytree(ROOT / name, source / name, ignore=shutil.ignore_patterns("__pycache__"))
-    command = [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q"]
-    subprocess.run([*command, "-w", str(tmp_path), "."], check=True, capture_output=True, cwd=source)
+    command = [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-v"]
+    # PYTHONDONTWRITEBYTECODE makes setuptools say "byte-compiling is disabled": the caller's
+    # environment, not the packaging, so it stays out of the check for warnings.
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+    build = subprocess.run(
+        [*command, "-w", str(tmp_path), "."], check=True, capture_output=True, text=True, cwd=source, env=env
+    )
+    log = build.stdout + build.stderr
+    warnings = [line for line in log.splitlines() if re.search(r"warning|would be ignored", line, re.I)]
+    assert warnings == []
     (wheel,) = tmp_path.glob("vcr_odom-*.whl")
     names = set(zipfile.ZipFile(wheel).namelist())
-    shipped = {p.relative_to(ROOT).as_posix() for p in (ROOT / "weights").rglob("*.safetensors")}
-    assert shipped and {f"vcr_odom/{name}" for name in shipped} <= names
+    shipped = {
+        p.relative_to(ROOT).as_posix()
+        for p in (ROOT / "weights").rglob("*")
+        if p.is_file() and "__pycache__" not in p.parts
+    }
+    assert {"weights/vcr-default.safetensors", "weights/training/vcr-default.run.json"} <= shipped
+    assert {f"vcr_odom/{name}" for name in shipped} - names == set()
     assert "vcr_odom/weights/MODEL_CARD.md" in names
     assert "vcr_odom/cli/main.py" in names
     assert not any(name.startswith(("cli/", "weights/", "tests/")) for name in names)
