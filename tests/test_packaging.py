@@ -89,3 +89,24 @@ def test_modules_stay_small():
         p.relative_to(ROOT).as_posix(): len(p.read_text().splitlines()) for p in (ROOT / "cli").rglob("*.py")
     }
     assert {path: lines for path, lines in sizes.items() if lines > 500} == {}
+
+
+def test_every_declared_dependency_is_imported():
+    """A dependency nothing imports only costs users an install (pykitti pulled in opencv for nothing)."""
+    import ast
+    import importlib.metadata
+
+    from packaging.requirements import Requirement
+
+    declared = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["dependencies"]
+    declared_names = {Requirement(spec).name.lower().replace("_", "-") for spec in declared}
+    imported: set[str] = set()
+    for path in [*(ROOT / "vcr_odom").rglob("*.py"), *(ROOT / "cli").rglob("*.py")]:
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import):
+                imported |= {alias.name.split(".")[0] for alias in node.names}
+            elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                imported.add(node.module.split(".")[0])
+    providers = importlib.metadata.packages_distributions()
+    used = {dist.lower().replace("_", "-") for module in imported for dist in providers.get(module, [])}
+    assert declared_names - used == set()

@@ -42,7 +42,6 @@ TRACKED_DISTRIBUTIONS = (
     "open3d",
     "kiss-icp",
     "evo",
-    "pykitti",
     "click",
     "rich",
 )
