@@ -20,6 +20,7 @@ from __future__ import annotations
 import json
 import os
 import platform
+import re
 import secrets
 import shutil
 import subprocess
@@ -162,8 +163,16 @@ def remove_result_folder(folder: str | os.PathLike[str]) -> None:
     shutil.rmtree(folder, ignore_errors=True)
 
 
+_LABEL_CHARS = 100
+"""Longest label kept in a folder name: with the time stamp and the staging suffix it stays far below
+the 255 bytes most file systems allow in a name."""
+
+
 def _safe(label: str) -> str:
-    return "".join(c if c.isalnum() or c in "-_." else "-" for c in label).strip("-") or "run"
+    """``label`` in ASCII letters, digits and ``-_.`` only (every other run of characters becomes one
+    ``-``), so the folder name needs no quoting in a shell and means the same on every file system."""
+    safe = re.sub(r"[^A-Za-z0-9_.-]+", "-", label)[:_LABEL_CHARS]
+    return safe.strip("-.") or "run"
 
 
 def holds_trajectory(folder: str | os.PathLike[str]) -> bool:

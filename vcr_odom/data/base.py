@@ -20,9 +20,11 @@ class LidarSequence(Protocol):
     ``timestamps`` is seconds per frame (10 Hz assumed where the source has none).
     ``timestamps_assumed`` is True exactly when they were assumed: no times were given and a rate was
     guessed, so speeds derived from frame gaps are guesses too (odometry flags rather than trusts them).
+    ``label`` names the data itself, for result folders (``name`` may be the same for two data roots).
     """
 
     name: str
+    label: str
 
     def __len__(self) -> int: ...
 

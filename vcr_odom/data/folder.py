@@ -25,6 +25,7 @@ from vcr_odom.data.scans import (
     folder_times_remedy,
     is_hidden,
     natural_sort_key,
+    path_label,
 )
 from vcr_odom.errors import DataError
 
@@ -132,6 +133,7 @@ class FolderSequence(ScanFileSequence):
         self.path = Path(path).expanduser()
         self.sequence_path = self.path
         self.name = f"folder/{self.path.resolve().name}"
+        self.label = path_label(self.path) or "folder"
         self.files = list_scan_files(self.path)
         self.kind = self.files[0].suffix.lower()
         if self.kind == ".bin":

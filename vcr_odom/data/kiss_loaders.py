@@ -50,7 +50,7 @@ from numpy.typing import NDArray
 from vcr_odom.data.base import Points
 from vcr_odom.data.livox import is_custom_msg, points_from_custom_msg
 from vcr_odom.data.pointcloud2 import points_from_pointcloud2
-from vcr_odom.data.scans import SequenceBase, clean_points, folder_times_remedy
+from vcr_odom.data.scans import SequenceBase, clean_points, folder_times_remedy, path_label
 from vcr_odom.errors import ConfigError, DataError, DataWarning, VcrOdomError
 from vcr_odom.geometry import project_to_se3
 
@@ -326,6 +326,8 @@ class KissLoaderSequence(SequenceBase):
         self._count = len(stamps) if stamps is not None and self.info.streaming else len(self.dataset)
         label = getattr(self.dataset, "sequence_id", None) or self.path.stem
         self.name = f"{loader}/{label}"
+        stem = self.path.stem if self.path.is_file() else path_label(self.path)
+        self.label = stem if stem == str(label) or stem.startswith(f"{label}.") else f"{stem}-{label}"
         self.sequence_path = self.path
         self.topic = getattr(self.dataset, "topic", None)
         if self.info.streaming:

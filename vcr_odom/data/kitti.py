@@ -17,6 +17,7 @@ from vcr_odom.data.scans import (
     check_pose_count,
     is_hidden,
     natural_sort_key,
+    path_label,
     read_tr,
 )
 from vcr_odom.errors import ConfigError, DataError
@@ -106,6 +107,7 @@ class KittiSequence(ScanFileSequence):
         self.root = Path(root).expanduser()
         self.seq, self.sequence_path = _sequence_folder(self.root, seq)
         self.name = f"kitti/{self.seq}"
+        self.label = f"{path_label(self.root) or 'kitti'}-{self.seq}"
         self.velodyne_path = self.sequence_path / "velodyne"
         self.files = self._list_scans()
 

@@ -131,12 +131,21 @@ def check_pose_count(poses: NDArray[np.float64], count: int, poses_path: Path, s
         )
 
 
+def path_label(path: Path) -> str:
+    """The last component of ``path`` as typed, made absolute (so "." and ".." name a folder) without
+    following links (a link's own name is the one the user knows)."""
+    return Path(os.path.abspath(path)).name
+
+
 class SequenceBase:
     """What every :class:`~vcr_odom.data.base.LidarSequence` here shares: index checks, ground truth in
-    both frames, timestamps and whether they were assumed. Subclasses set ``name``, implement
-    ``__len__`` and ``_load(position)``, and call :meth:`_set_poses` and :meth:`_set_times`."""
+    both frames, timestamps and whether they were assumed. Subclasses set ``name`` and ``label``,
+    implement ``__len__`` and ``_load(position)``, and call :meth:`_set_poses` and :meth:`_set_times`."""
 
     name: str
+    label: str
+    """What result folders are named after: the data itself (a KITTI root's folder and the sequence, a
+    scan folder's name, a recording's stem), where ``name`` only says the kind ("kitti/00" for any root)."""
     gt_poses_camera: NDArray[np.float64] | None
     """Ground truth in KITTI's left-camera frame (frame 0 = identity), or None when no calibration."""
 

@@ -149,7 +149,7 @@ def run_comparison(settings: CompareSettings, progress: ProgressFactory | None =
         pair_input_range([pair_spec(s) for s in settings.methods if works_on_pairs(s)], settings.weights)
     folder = create_result_folder(
         settings.results_dir,
-        f"compare_{sequence.name}_stride{settings.selection.stride}",
+        f"compare_{sequence.label}_stride{settings.selection.stride}",
         {"command": "compare", "sequence": sequence.name, **settings.to_dict()},
         frames_selected=len(indices),
     )

@@ -116,7 +116,7 @@ def map_sequence(settings: MapSettings, progress: ProgressFactory | None = None)
     network = loop_network(settings.weights, settings.device, settings.vcr_points)
     folder = create_result_folder(
         settings.results_dir,
-        f"map_{sequence.name}_{settings.spec}",
+        f"map_{sequence.label}_{settings.spec}",
         {"command": "map", "sequence": sequence.name, **settings.to_dict()},
         frames_selected=len(indices),
     )

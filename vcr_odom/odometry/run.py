@@ -20,7 +20,7 @@ from vcr_odom.data.base import LidarSequence, Points
 from vcr_odom.data.selection import FrameSelection
 from vcr_odom.errors import VcrOdomError
 from vcr_odom.geometry import Transform
-from vcr_odom.mapping import VoxelMap, check_map_path
+from vcr_odom.mapping import VoxelMap, check_map_outside_scans, check_map_path
 from vcr_odom.metrics import EvaluationReport, evaluate
 from vcr_odom.odometry.chain import Consult, Odometry
 from vcr_odom.odometry.factory import DEFAULT_CONSULT, build_odometry, canonical_spec
@@ -109,12 +109,14 @@ def run_sequence(settings: RunSettings, progress: ProgressFactory | None = None)
     if settings.save_map is not None:
         check_map_path(settings.save_map)
     sequence = settings.selection.open()
+    if settings.save_map is not None:
+        check_map_outside_scans(settings.save_map, sequence)
     indices = settings.selection.indices(sequence)
     spec = settings.spec
     odometry = method_for(settings)
     folder = create_result_folder(
         settings.results_dir,
-        f"run_{sequence.name}_{spec}",
+        f"run_{sequence.label}_{spec}",
         {"command": "run", "sequence": sequence.name, **settings.to_dict()},
         frames_selected=len(indices),
     )

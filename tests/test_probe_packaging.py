@@ -1,0 +1,112 @@
+"""Result folders are named after the data they hold (issue 23): two KITTI roots with a sequence 00 no
+longer both give ``..._kitti-00_...``, and a name never carries characters a shell or file system mangles."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from vcr_odom.cli.main import cli
+from vcr_odom.data import FolderSequence, KissLoaderSequence, KittiSequence, open_sequence
+from vcr_odom.errors import DataWarning
+from vcr_odom.results import create_result_folder
+from vcr_odom.synth import generate_sequence
+
+STAMP = r"\d{8}-\d{6}"
+
+
+@pytest.fixture(scope="module")
+def two_roots(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """Two KITTI-layout roots, each with a 4-frame sequence '00': only their folder names differ."""
+    base = tmp_path_factory.mktemp("roots")
+    roots = (base / "drive-a", base / "drive-b")
+    for seed, root in enumerate(roots):
+        generate_sequence(root, seq="00", frames=4, seed=seed)
+    return roots
+
+
+def result_names(results: Path) -> list[str]:
+    return sorted(p.name for p in results.iterdir() if not p.is_symlink() and not p.name.startswith("."))
+
+
+def test_runs_on_two_kitti_roots_get_folders_named_after_each_root(two_roots, tmp_path):
+    for root in two_roots:
+        args = ["run", "--data-root", str(root), "--seq", "0", "--method", "icp10"]
+        result = CliRunner().invoke(cli, [*args, "--results-dir", str(tmp_path)])
+        assert result.exit_code == 0, result.output
+    first, second = result_names(tmp_path)
+    assert re.fullmatch(rf"{STAMP}_run_drive-a-00_icp10", first), first
+    assert re.fullmatch(rf"{STAMP}_run_drive-b-00_icp10", second), second
+
+
+def test_a_kitti_label_names_the_root_as_typed(two_roots, monkeypatch):
+    root = two_roots[0]
+    assert KittiSequence(root, "00").label == "drive-a-00"
+    assert open_sequence(folder=root / "sequences" / "00").label == "drive-a-00"  # found as KITTI
+    monkeypatch.chdir(root)
+    assert KittiSequence(".", 0).label == "drive-a-00"  # "." is the folder it stands for
+    link = root.parent / "my-link"
+    link.symlink_to(root, target_is_directory=True)
+    assert KittiSequence(link, "00").label == "my-link-00"  # the name the user typed, not the target's
+
+
+def test_a_scan_folder_and_a_recording_are_labelled_by_their_own_names(tmp_path):
+    scans = tmp_path / "Fahrt 2024"
+    scans.mkdir()
+    for index in range(2):
+        np.zeros((10, 4), np.float32).tofile(scans / f"{index}.bin")
+    with pytest.warns(DataWarning):
+        assert FolderSequence(scans).label == "Fahrt 2024"
+    with pytest.warns(DataWarning):
+        assert KissLoaderSequence("generic", scans).label == "Fahrt 2024"
+
+
+def test_a_bag_is_labelled_by_its_stem(tmp_path):
+    pytest.importorskip("rosbags")
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    store, cloud = get_typestore(Stores.ROS1_NOETIC), "sensor_msgs/msg/PointCloud2"
+    types = store.types
+    fields = [
+        types["sensor_msgs/msg/PointField"](name=name, offset=4 * k, datatype=7, count=1)
+        for k, name in enumerate("xyz")
+    ]
+    header = types["std_msgs/msg/Header"](
+        seq=0, stamp=types["builtin_interfaces/msg/Time"](sec=1, nanosec=0), frame_id="lidar"
+    )
+    points = np.arange(30, dtype=np.float32).reshape(10, 3)
+    message = types[cloud](
+        header=header, height=1, width=10, fields=fields, is_bigendian=False, point_step=12,
+        row_step=120, data=np.frombuffer(points.tobytes(), np.uint8), is_dense=True,
+    )  # fmt: skip
+    with Writer(tmp_path / "city.loop.bag") as writer:
+        connection = writer.add_connection("/points", cloud, typestore=store)
+        writer.write(connection, 10**9, store.serialize_ros1(message, cloud))
+    with KissLoaderSequence("rosbag", tmp_path / "city.loop.bag") as sequence:
+        assert sequence.name == "rosbag/city" and sequence.label == "city.loop"
+
+
+@pytest.mark.parametrize(
+    ("label", "expected"),
+    [
+        ("run_kitti/00_vcr+kiss-icp", "run_kitti-00_vcr-kiss-icp"),
+        ("run_Fahrt ü 2024:03_icp10", "run_Fahrt-2024-03_icp10"),
+        ("run_../../etc_icp10", "run_..-..-etc_icp10"),
+        ("..", "run"),
+        ("ü", "run"),
+    ],
+)
+def test_folder_names_keep_only_safe_ascii(tmp_path, label, expected):
+    folder = create_result_folder(tmp_path, label)
+    assert folder.parent == tmp_path
+    assert re.fullmatch(rf"{STAMP}_{re.escape(expected)}", folder.name), folder.name
+
+
+def test_a_very_long_label_is_cut_to_a_name_every_file_system_takes(tmp_path):
+    folder = create_result_folder(tmp_path, "run_" + "x" * 400 + "_icp10")
+    assert folder.is_dir() and len(folder.name) <= 120
