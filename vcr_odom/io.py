@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import os
 import secrets
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -27,15 +28,43 @@ def temporary_sibling(path: str | os.PathLike[str]) -> Path:
 def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> Path:
     """Write ``data`` to a temporary file beside ``path``, then rename it into place."""
     path = Path(path)
-    temporary = temporary_sibling(path)
     try:
-        with open(temporary, "xb") as handle:
-            handle.write(data)
-        os.replace(temporary, path)
-    except BaseException:
-        temporary.unlink(missing_ok=True)
-        raise
+        temporary = temporary_sibling(path)
+        try:
+            with open(temporary, "xb") as handle:
+                handle.write(data)
+            os.replace(temporary, path)
+        finally:
+            temporary.unlink(missing_ok=True)
+    except OSError as error:  # a full disk, a quota, a read-only mount: one line naming the file
+        raise DataError(f"{path}: could not write: {describe_os_error(error)}") from error
     return path
+
+
+def describe_os_error(error: OSError) -> str:
+    """``No space left on device`` (the reason alone: the caller names the file it was writing)."""
+    return error.strerror or str(error)
+
+
+def check_free_space(path: str | os.PathLike[str], needed: int, what: str) -> None:
+    """DataError, before writing ``what`` (about ``needed`` bytes) at ``path``, where its file system
+    has less free space: a full disk found after the work would waste it, or cut a file short."""
+    folder = Path(path).absolute().parent
+    while not folder.exists() and folder.parent != folder:
+        folder = folder.parent
+    try:
+        free = shutil.disk_usage(folder).free
+    except OSError:
+        return  # nothing to measure with (an odd file system): the write itself still checks
+    if free < needed:
+        raise DataError(
+            f"{path}: not enough free space for {what} (needs about {_megabytes(needed)}, "
+            f"{_megabytes(free)} free on {folder})"
+        )
+
+
+def _megabytes(size: int) -> str:
+    return f"{size / 1e6:.1f} MB"
 
 
 def atomic_write_text(path: str | os.PathLike[str], text: str) -> Path:

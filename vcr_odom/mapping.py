@@ -23,11 +23,19 @@ import open3d as o3d
 from numpy.typing import ArrayLike, NDArray
 
 from vcr_odom.errors import ConfigError, DataError
-from vcr_odom.io import temporary_sibling
+from vcr_odom.io import check_free_space, temporary_sibling
 from vcr_odom.results import check_output_file
 
 MAP_SUFFIXES = (".ply", ".pcd")
 """Extensions :meth:`VoxelMap.save` writes; open3d picks the format from the extension."""
+
+_MAP_POINT_BYTES = 27
+"""Bytes a point takes in the binary .ply open3d writes (3 doubles, 3 colour bytes; .pcd takes 16)."""
+_MAP_HEADER_BYTES = 4096
+
+_PLY_SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2, "int16": 2}
+_PLY_SIZES |= {"uint16": 2, "int": 4, "uint": 4, "int32": 4, "uint32": 4, "float": 4, "float32": 4}
+_PLY_SIZES |= {"double": 8, "float64": 8}
 
 _MIN_MERGE = 100_000
 """Queue size below which merging is not worth its cost (avoids re-sorting a small map every frame)."""
@@ -37,6 +45,26 @@ def check_map_path(path: str | os.PathLike[str], option: str = "--save-map") -> 
     """Where :meth:`VoxelMap.save` will write, checked before a run starts (extension, a folder that
     can be written): a wrong ``--save-map`` found after an hour's run would waste the run."""
     return check_output_file(path, option, MAP_SUFFIXES)
+
+
+def check_map_outside_scans(
+    path: str | os.PathLike[str], sequence: object, option: str = "--save-map"
+) -> None:
+    """ConfigError where the map would be written inside the folder its scans are read from: a
+    ``map.ply`` among ``--folder``'s scans becomes a scan of the next run there (and the folder's last
+    frame, a cloud of the whole drive). ``sequence`` is the opened input (its ``velodyne_path`` or
+    ``path``, whichever it has)."""
+    target = Path(path).expanduser().resolve()
+    for attribute in ("velodyne_path", "path"):
+        folder = getattr(sequence, attribute, None)
+        if isinstance(folder, Path) and folder.is_dir():
+            scans = folder.resolve()
+            if target.is_relative_to(scans):
+                raise ConfigError(
+                    f"{option} {path}: inside the scan folder {folder}, where the map would be read "
+                    "as a scan by the next run; write it outside that folder"
+                )
+            return
 
 
 class VoxelMap:
@@ -115,7 +143,11 @@ class VoxelMap:
 
     def save(self, path: str | os.PathLike[str]) -> Path:
         """Write the map as .ply or .pcd (chosen by extension) atomically: a temporary file with the same
-        extension beside ``path``, renamed into place, so a reader never sees half a map."""
+        extension beside ``path``, renamed into place only once it is known whole, so a reader never
+        sees half a map and a failed write leaves whatever was at ``path`` before.
+
+        Why the checks: open3d's writer reports a full disk on stderr and still returns True, so the
+        free space is checked first and the written file's size against its own header after."""
         target = Path(path)
         suffix = target.suffix.lower()
         if suffix not in MAP_SUFFIXES:
@@ -128,13 +160,16 @@ class VoxelMap:
         cloud.colors = o3d.utility.Vector3dVector(np.repeat(grey[:, None], 3, axis=1))
         temporary = temporary_sibling(target)
         temporary = temporary.with_name(temporary.name + suffix)
+        check_free_space(target, _MAP_HEADER_BYTES + _MAP_POINT_BYTES * len(self._xyz), "the map")
         try:
             if not o3d.io.write_point_cloud(str(temporary), cloud, write_ascii=False, compressed=False):
-                raise DataError(f"{target}: open3d could not write the map")
+                raise DataError(f"{target}: open3d could not write the map; nothing was written there")
+            _check_written(temporary, target, len(self._xyz))
             os.replace(temporary, target)
-        except BaseException:
+        except OSError as error:
+            raise DataError(f"{target}: could not write the map: {error.strerror or error}") from error
+        finally:
             temporary.unlink(missing_ok=True)
-            raise
         return target
 
     # ------------------------------------------------------------------------------------------
@@ -156,3 +191,56 @@ class VoxelMap:
         self._queue.clear()
         self._queued = 0
         self._xyz, self._intensity = self._down_sample(xyz, intensity)
+
+
+def _check_written(written: Path, target: Path, points: int) -> None:
+    """DataError unless ``written`` is as long as its header says (header + points x row size) and
+    holds ``points`` points: a disk that filled up mid-write leaves a shorter file, which open3d does
+    not report. ``fsync`` first, so that a file system that allocates late reports it here."""
+    with open(written, "rb+") as handle:
+        os.fsync(handle.fileno())
+        head = handle.read(_MAP_HEADER_BYTES)
+    layout = _binary_layout(head)
+    if layout is None:
+        raise DataError(
+            f"{target}: open3d wrote a map whose header cannot be read; nothing was written there"
+        )
+    header, count, row = layout
+    expected, size = header + count * row, written.stat().st_size
+    if count != points or size != expected:
+        raise DataError(
+            f"{target}: the map was cut short while writing ({size} of {expected} bytes, {count} of "
+            f"{points} points; is the disk full?); nothing was written there"
+        )
+
+
+def _binary_layout(head: bytes) -> tuple[int, int, int] | None:
+    """(header bytes, points, bytes per point) of a binary .ply or .pcd header, or None."""
+    for end in (b"end_header\n", b"DATA binary\n"):
+        at = head.find(end)
+        if at >= 0:
+            header = at + len(end)
+            lines = [line.split() for line in head[:at].decode("ascii", "replace").splitlines()]
+            layout = _ply_layout(lines) if end.startswith(b"end") else _pcd_layout(lines)
+            return None if layout is None else (header, *layout)
+    return None
+
+
+def _ply_layout(lines: list[list[str]]) -> tuple[int, int] | None:
+    """Vertex count and row size of a PLY header whose only element is ``vertex`` (what open3d writes)."""
+    counts = [line[2] for line in lines if line[:1] == ["element"] and len(line) == 3]
+    types = [line[1] for line in lines if line[:1] == ["property"] and len(line) == 3]
+    if len(counts) != 1 or not counts[0].isdigit() or not types or any(t not in _PLY_SIZES for t in types):
+        return None
+    return int(counts[0]), sum(_PLY_SIZES[name] for name in types)
+
+
+def _pcd_layout(lines: list[list[str]]) -> tuple[int, int] | None:
+    """Point count and row size of a PCD header (``POINTS``, ``SIZE``, ``COUNT``)."""
+    fields = {line[0]: line[1:] for line in lines if line and not line[0].startswith("#")}
+    try:
+        sizes = [int(value) for value in fields["SIZE"]]
+        counts = [int(value) for value in fields.get("COUNT", ["1"] * len(sizes))]
+        return int(fields["POINTS"][0]), sum(a * b for a, b in zip(sizes, counts, strict=True))
+    except (KeyError, IndexError, ValueError):
+        return None

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
@@ -13,18 +14,33 @@ import matplotlib.pyplot as plt
 import numpy as np
 from numpy.typing import NDArray
 
-from vcr_odom.io import temporary_sibling
+from vcr_odom.errors import DataError
+from vcr_odom.io import describe_os_error, temporary_sibling
+
+_SURROGATES = re.compile("[\ud800-\udfff]")
+
+
+def printable(text: object) -> str:
+    """``text`` as matplotlib can draw it: a path whose name is not valid UTF-8 (``b"scans\\xff"``,
+    which Python holds as a lone surrogate, ``"scans\\udcff"``) would otherwise fail in the font code,
+    after every frame of a run was done. Each surrogate becomes U+FFFD, as a file manager shows it."""
+    return _SURROGATES.sub("\ufffd", str(text))
 
 
 def _save(figure: plt.Figure, path: str | os.PathLike[str]) -> Path:
-    """Save through a temporary file so an interrupted run never leaves a truncated PNG."""
+    """Save through a temporary file so an interrupted run never leaves a truncated PNG; a failed
+    write (a full disk) is a DataError naming the file, not a traceback from deep in PIL."""
     path = Path(path)
-    temporary = temporary_sibling(path)
     try:
-        figure.savefig(temporary, dpi=130, bbox_inches="tight", format="png")
-        os.replace(temporary, path)
+        temporary = temporary_sibling(path)
+        try:
+            figure.savefig(temporary, dpi=130, bbox_inches="tight", format="png")
+            os.replace(temporary, path)
+        finally:
+            temporary.unlink(missing_ok=True)
+    except OSError as error:
+        raise DataError(f"{path}: could not write: {describe_os_error(error)}") from error
     finally:
-        temporary.unlink(missing_ok=True)
         plt.close(figure)
     return path
 
@@ -46,7 +62,7 @@ def plot_trajectories(
     if ground_truth is not None:
         axes.plot(ground_truth[:, 0, 3], ground_truth[:, 1, 3], "k--", lw=2, label="ground truth")
     for name, poses in trajectories.items():
-        axes.plot(poses[:, 0, 3], poses[:, 1, 3], lw=1.5, label=name)
+        axes.plot(poses[:, 0, 3], poses[:, 1, 3], lw=1.5, label=printable(name))
     for number, (a, b) in enumerate(links):
         label = f"loops ({len(links)})" if number == 0 else None
         axes.plot([a[0, 3], b[0, 3]], [a[1, 3], b[1, 3]], "m-", lw=0.8, alpha=0.8, label=label)
@@ -58,7 +74,7 @@ def plot_trajectories(
     axes.set_aspect("equal", adjustable="datalim")
     axes.grid(True, alpha=0.3)
     axes.legend(loc="best", fontsize=8)
-    axes.set_title(title)
+    axes.set_title(printable(title))
     return _save(figure, path)
 
 
@@ -72,9 +88,9 @@ def plot_pair_errors(
     """Per-pair rotation and translation errors along the sequence, one line per method."""
     figure, (top, bottom) = plt.subplots(2, 1, figsize=(8, 5), sharex=True)
     for name, errors in rotation_errors_deg.items():
-        top.plot(errors, lw=1, label=name)
+        top.plot(errors, lw=1, label=printable(name))
     for name, errors in translation_errors_m.items():
-        bottom.plot(errors, lw=1, label=name)
+        bottom.plot(errors, lw=1, label=printable(name))
     top.set_ylabel("rotation error [deg]")
     bottom.set_ylabel("translation error [m]")
     bottom.set_xlabel("pair")
@@ -82,5 +98,5 @@ def plot_pair_errors(
         axes.grid(True, alpha=0.3)
         axes.set_yscale("symlog", linthresh=1e-2)
     top.legend(loc="best", fontsize=8)
-    top.set_title(title)
+    top.set_title(printable(title))
     return _save(figure, path)

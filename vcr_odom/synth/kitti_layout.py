@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import os
 import re
-import secrets
 import shutil
 import time
 from collections.abc import Callable
@@ -17,9 +16,18 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from vcr_odom.errors import ConfigError
+from vcr_odom.data.kitti import staging_name
+from vcr_odom.errors import ConfigError, DataError
 from vcr_odom.geometry import lidar_to_camera_poses
-from vcr_odom.io import atomic_write_bytes, write_kitti_calib, write_kitti_poses, write_times
+from vcr_odom.io import (
+    atomic_write_bytes,
+    check_free_space,
+    describe_os_error,
+    temporary_sibling,
+    write_kitti_calib,
+    write_kitti_poses,
+    write_times,
+)
 from vcr_odom.synth.calibration import KITTI_TR, kitti_calib
 from vcr_odom.synth.sequence import SynthConfig, SynthSequence
 
@@ -71,9 +79,11 @@ def write_sequence(
     """Write ``sequence`` under ``out_root`` in the KITTI odometry layout.
 
     The sequence folder is written in full beside its place (a hidden ``sequences/.<seq>.*.writing``)
-    and renamed into place; the poses file comes last. So an interrupted or killed synth over an
-    existing sequence leaves the old one or the new one, never frames of both: at worst a sequence
-    without its poses file, which is how an incomplete sequence shows. A folder holding files synth
+    and renamed into place; the poses file is written beside its place too and renamed in last. So an
+    interrupted or killed synth over an existing sequence leaves the old one or the new one, never
+    frames of both: at worst a sequence without its poses file, which is how an incomplete sequence
+    shows. A write that fails (a full disk) leaves the old sequence whole and raises a DataError
+    naming the sequence; the free space is checked after the first frame. A folder holding files synth
     does not write (a real dataset's images, say) is refused rather than replaced. ``progress`` is
     called with the number of frames written so far. Only the sequence's frames are written: with
     keyframes, the kept ones, numbered from 0, with their own times and poses.
@@ -86,25 +96,27 @@ def write_sequence(
     poses_file = root / "poses" / f"{seq}.txt"
     _check_replaceable(seq_dir)
     seq_dir.parent.mkdir(parents=True, exist_ok=True)
-    for pattern in (f".{seq}.*.writing", f".{seq}.*.old"):  # left by a killed synth
-        for stale in seq_dir.parent.glob(pattern):
-            shutil.rmtree(stale, ignore_errors=True)
-    staging = seq_dir.with_name(f".{seq}.{os.getpid()}.{secrets.token_hex(4)}.writing")
+    poses_file.parent.mkdir(parents=True, exist_ok=True)
+    _remove_stale(seq_dir, poses_file)
+    staging = seq_dir.with_name(staging_name(seq, ".writing"))
+    poses_pending = temporary_sibling(poses_file)
+    existed = seq_dir.is_dir()
     try:
-        velodyne = staging / "velodyne"
-        velodyne.mkdir(parents=True)
-        for index in range(len(sequence)):
-            write_bin(velodyne / f"{index:06d}.bin", sequence.frame(index))
-            if progress is not None:
-                progress(index + 1)
-        write_kitti_calib(staging / "calib.txt", kitti_calib())
-        write_times(staging / "times.txt", sequence.timestamps)
+        try:
+            _write_staging(sequence, staging, seq_dir, progress)
+            write_kitti_poses(poses_pending, lidar_to_camera_poses(sequence.gt_poses, KITTI_TR))
+        except (OSError, DataError) as error:
+            failure = _not_written(error, seq_dir, existed)
+            if failure is None:
+                raise
+            raise failure from error
         poses_file.unlink(missing_ok=True)  # from here the old sequence shows as incomplete
         _replace_folder(staging, seq_dir)
+        os.replace(poses_pending, poses_file)  # a rename: needs no space, so it cannot run out of it
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
+        poses_pending.unlink(missing_ok=True)
         raise
-    write_kitti_poses(poses_file, lidar_to_camera_poses(sequence.gt_poses, KITTI_TR))
     return WrittenSequence(
         seq_dir=seq_dir,
         poses_file=poses_file,
@@ -119,6 +131,44 @@ def write_sequence(
         motion=sequence.motion,
         route=sequence.route,
     )
+
+
+def _write_staging(
+    sequence: SynthSequence, staging: Path, seq_dir: Path, progress: Callable[[int], None] | None
+) -> None:
+    """Frames, calibration and times into ``staging``; after the first frame, a DataError if the
+    disk cannot hold about as many frames again (found at frame 1, not at frame 900)."""
+    velodyne = staging / "velodyne"
+    velodyne.mkdir(parents=True)
+    for index in range(len(sequence)):
+        points = sequence.frame(index)
+        if index == 0:
+            needed = np.asarray(points, dtype=np.float32).nbytes * len(sequence)
+            check_free_space(seq_dir, needed, f"{len(sequence)} frames")
+        write_bin(velodyne / f"{index:06d}.bin", points)
+        if progress is not None:
+            progress(index + 1)
+    write_kitti_calib(staging / "calib.txt", kitti_calib())
+    write_times(staging / "times.txt", sequence.timestamps)
+
+
+def _not_written(error: OSError | DataError, seq_dir: Path, existed: bool) -> DataError | None:
+    """One line for a write that failed (a full disk, a quota, a read-only mount): which sequence,
+    why, and that the sequence already there, if any, is untouched. None for any other error."""
+    cause = error if isinstance(error, OSError) else error.__cause__
+    if not isinstance(cause, OSError):
+        return None
+    kept = "the sequence already there is kept" if existed else "nothing was written"
+    return DataError(f"{seq_dir}: could not write the sequence: {describe_os_error(cause)}; {kept}")
+
+
+def _remove_stale(seq_dir: Path, poses_file: Path) -> None:
+    """What a killed synth left beside the sequence and its poses file."""
+    for pattern in (f".{seq_dir.name}.*.writing", f".{seq_dir.name}.*.old"):
+        for stale in seq_dir.parent.glob(pattern):
+            shutil.rmtree(stale, ignore_errors=True)
+    for stale in poses_file.parent.glob(f".{poses_file.name}.*.tmp"):
+        stale.unlink(missing_ok=True)
 
 
 def _check_replaceable(seq_dir: Path) -> None:
@@ -138,7 +188,7 @@ def _replace_folder(new: Path, target: Path) -> None:
     """Put ``new`` where ``target`` is: the old folder is renamed aside, then removed."""
     old = None
     if target.exists():
-        old = target.with_name(f".{target.name}.{os.getpid()}.{secrets.token_hex(4)}.old")
+        old = target.with_name(staging_name(target.name, ".old"))
         os.rename(target, old)
     os.rename(new, target)
     if old is not None:
