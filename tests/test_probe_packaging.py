@@ -110,3 +110,54 @@ def test_folder_names_keep_only_safe_ascii(tmp_path, label, expected):
 def test_a_very_long_label_is_cut_to_a_name_every_file_system_takes(tmp_path):
     folder = create_result_folder(tmp_path, "run_" + "x" * 400 + "_icp10")
     assert folder.is_dir() and len(folder.name) <= 120
+
+
+# -- the model card ----------------------------------------------------------------------------------
+
+ROOT = Path(__file__).resolve().parents[1]
+CARD = ROOT / "weights" / "MODEL_CARD.md"
+HUB_SECTIONS = (
+    "Model details",
+    "Intended use",
+    "Out-of-scope use",
+    "Training data",
+    "Training procedure",
+    "Evaluation",
+    "Limitations and known failures",
+    "Deviations from the paper, and why",
+)
+
+
+def slug(heading: str) -> str:
+    """GitHub's anchor for a heading: lower case, punctuation dropped, spaces as hyphens."""
+    return re.sub(r"[^\w\- ]", "", heading.strip().lower()).replace(" ", "-")
+
+
+def test_the_model_card_is_short_and_has_the_sections_users_look_for():
+    text = CARD.read_text()
+    headings = re.findall(r"^## (.+)$", text, flags=re.M)
+    assert len(text.splitlines()) <= 350
+    assert list(HUB_SECTIONS) == [h for h in headings if h in HUB_SECTIONS]
+    assert "Speed on a GPU: never measured" in text  # no invented figure for what no one timed
+    listed = [expand(name) for name in re.findall(r"^\| `([^`]+)` \|", text, flags=re.M)]
+    files = [name for names in listed for name in names]
+    assert {"vcr-default.safetensors", "training/vcr-default-finetune.run.json"} <= set(files)
+    assert [name for name in files if not (CARD.parent / name).is_file()] == []
+
+
+def expand(name: str) -> list[str]:
+    """``a.{run,history}.json`` -> ``a.run.json``, ``a.history.json`` (the card's file table)."""
+    match = re.search(r"\{([^}]+)\}", name)
+    if match is None:
+        return [name]
+    return [name[: match.start()] + part + name[match.end() :] for part in match.group(1).split(",")]
+
+
+@pytest.mark.parametrize("document", [CARD, ROOT / "docs" / "results.md"])
+def test_links_between_the_documents_reach_a_file_and_a_heading(document):
+    for target in re.findall(r"\]\(([^)#\s]+\.md)(?:#([\w-]+))?\)", document.read_text()):
+        path, anchor = document.parent / target[0], target[1]
+        assert path.is_file(), f"{document.name} links to missing {target[0]}"
+        if anchor:
+            anchors = {slug(h) for h in re.findall(r"^#+ (.+)$", path.read_text(), flags=re.M)}
+            assert anchor in anchors, f"{document.name}: no heading #{anchor} in {target[0]}"
