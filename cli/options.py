@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 import click
+from click.core import ParameterSource
 
 from vcr_odom.data.bin_scans import DEFAULT_BIN_COLUMNS, MAX_BIN_COLUMNS
 from vcr_odom.data.kiss_loaders import LOADERS, install_hint, installed_loaders
@@ -134,12 +135,21 @@ def sequence_options(function: F) -> F:
             "frames",
             "stride",
         )
-        kwargs["selection"] = FrameSelection(**{name: kwargs.pop(name) for name in names})
+        values = {name: kwargs.pop(name) for name in names}
+        if _from_environment("data_root"):  # the library reads it and names the variable, not the option
+            values["data_root"] = None
+        kwargs["selection"] = FrameSelection(**values)
         return function(*args, **kwargs)
 
     for decorator in reversed(decorators):
         wrapper = decorator(wrapper)
     return wrapper  # type: ignore[return-value]
+
+
+def _from_environment(name: str) -> bool:
+    """Whether click took parameter ``name`` from its environment variable (so errors name that)."""
+    context = click.get_current_context(silent=True)
+    return context is not None and context.get_parameter_source(name) is ParameterSource.ENVIRONMENT
 
 
 def results_option(function: F) -> F:

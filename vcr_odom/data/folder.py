@@ -1,9 +1,10 @@
 """A plain folder of scans (``.bin``, ``.pcd`` or ``.ply``), for data that is not in the KITTI layout.
 
-Users bring recordings exported by other tools; this takes them as they are: files sorted naturally
-by name, hidden files (macOS ``._*`` resource forks) skipped, an optional KITTI-format poses file, and
-timestamps from a given ``times.txt``-style file or the folder's own ``times.txt`` (10 Hz assumed, with a
-warning, when there is neither).
+Users bring recordings exported by other tools; this takes them as they are: files sorted by the
+numbers in their names (timestamps with decimals too), hidden files (macOS ``._*`` resource forks)
+skipped but nothing else (a broken link or a folder named like a scan is an error), an optional
+KITTI-format poses file, and timestamps from a given ``times.txt``-style file or the folder's own
+``times.txt`` (10 Hz assumed, with a warning, when there is neither).
 """
 
 from __future__ import annotations
@@ -16,15 +17,22 @@ import numpy as np
 from numpy.typing import NDArray
 
 from vcr_odom.data.base import Points
-from vcr_odom.data.bin_scans import DEFAULT_BIN_COLUMNS, check_bin_size, check_columns, read_bin_scan
+from vcr_odom.data.bin_scans import (
+    DEFAULT_BIN_COLUMNS,
+    check_bin_size,
+    check_columns,
+    decode_bin,
+    read_bin_scan,
+)
 from vcr_odom.data.cloud_files import check_cloud_file
+from vcr_odom.data.kitti import refuse_staging
 from vcr_odom.data.scans import (
     TIMES_FILE,
     ScanFileSequence,
     clean_points,
+    describe_other_entries,
     folder_times_remedy,
-    is_hidden,
-    natural_sort_key,
+    list_scan_entries,
     path_label,
 )
 from vcr_odom.errors import DataError
@@ -92,22 +100,21 @@ def read_scan(path: str | os.PathLike[str], bin_columns: int = DEFAULT_BIN_COLUM
 
 
 def list_scan_files(folder: Path) -> list[Path]:
-    """Scan files of one kind, naturally sorted; mixed kinds are an error (frame order would be a guess).
-    Hidden files are not scans (see :func:`~vcr_odom.data.scans.is_hidden`)."""
+    """Scan files of one kind, in frame order (:func:`~vcr_odom.data.scans.natural_sort_key`); mixed
+    kinds are an error (frame order would be a guess), and so is an entry named like a scan that is not
+    a readable file (:func:`~vcr_odom.data.scans.check_scan_entry`): it is never skipped. Hidden files
+    are not scans (see :func:`~vcr_odom.data.scans.is_hidden`)."""
     if not folder.is_dir():
         raise DataError(f"scan folder does not exist: {folder}")
-    files = [
-        p
-        for p in folder.iterdir()
-        if p.is_file() and p.suffix.lower() in SCAN_EXTENSIONS and not is_hidden(p)
-    ]
+    refuse_staging(folder)
+    files = list_scan_entries(folder, SCAN_EXTENSIONS)
     if not files:
         hint = f" (did you mean {folder / 'velodyne'}?)" if (folder / "velodyne").is_dir() else ""
         raise DataError(f"no scans ({', '.join(SCAN_EXTENSIONS)}) in {folder}{hint}")
     kinds = sorted({p.suffix.lower() for p in files})
     if len(kinds) > 1:
         raise DataError(f"{folder} mixes scan formats ({', '.join(kinds)}); keep one kind of file per folder")
-    return sorted(files, key=natural_sort_key)
+    return files
 
 
 class FolderSequence(ScanFileSequence):
@@ -137,8 +144,9 @@ class FolderSequence(ScanFileSequence):
         self.files = list_scan_files(self.path)
         self.kind = self.files[0].suffix.lower()
         if self.kind == ".bin":
-            for file in self.files:  # stat only, as for KITTI: fail before a long run, read nothing
+            for file in self.files:  # stat only, as for KITTI: fail before a long run
                 check_bin_size(file, self.bin_columns)
+            decode_bin(self.files[0], self.bin_columns)  # its layout and values, before a long run
 
         self.poses_path = Path(poses).expanduser() if poses is not None else None
         self.calib_path = Path(calib).expanduser() if calib is not None else None
@@ -153,3 +161,6 @@ class FolderSequence(ScanFileSequence):
 
     def _read(self, path: Path) -> Points:
         return read_scan(path, self.bin_columns)
+
+    def _uncounted(self) -> str:
+        return describe_other_entries(self.path, SCAN_EXTENSIONS)

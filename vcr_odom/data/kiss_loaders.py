@@ -185,7 +185,17 @@ def choose_topic(found: dict[str, str], topic: str | None, path: Path, loader: s
     raise ConfigError(f"{path} has several {what} topics ({_listed(clouds)}); choose one with --topic")
 
 
-class _RosbagTopics:
+class _QuietDel:
+    """kiss-icp's ``__del__`` closes ``self.bag`` even when a failed ``__init__`` never opened it (a broken
+    bag), and Python prints that error as an "Exception ignored in __del__" traceback after the one-line
+    error; what was opened is closed by :func:`_release`, so nothing here may raise."""
+
+    def __del__(self) -> None:
+        with contextlib.suppress(Exception):
+            super().__del__()  # type: ignore[misc]
+
+
+class _RosbagTopics(_QuietDel):
     """Over kiss-icp's RosbagDataset: :func:`choose_topic`, and CustomMsg frames from the raw bytes."""
 
     recording: Path
@@ -204,7 +214,7 @@ class _RosbagTopics:
         return self.read_point_cloud(rawdata)
 
 
-class _McapTopics:
+class _McapTopics(_QuietDel):
     """Over kiss-icp's McapDataloader: :func:`choose_topic`, and CustomMsg frames from the raw CDR bytes
     (read with ``mcap`` alone, so they need no schema that ``mcap_ros2`` could decode)."""
 
@@ -330,9 +340,9 @@ class KissLoaderSequence(SequenceBase):
         self.label = stem if stem == str(label) or stem.startswith(f"{label}.") else f"{stem}-{label}"
         self.sequence_path = self.path
         self.topic = getattr(self.dataset, "topic", None)
+        if self._count == 0:
+            raise DataError(self._no_frames())
         if self.info.streaming:
-            if self._count == 0:
-                raise DataError(f"{self.path}: no messages on {self.topic} ({self.dataset.msgtype})")
             self.dataset.read_point_cloud = self._converter()
 
         self.poses_path = Path(poses).expanduser() if poses is not None else None
@@ -348,6 +358,13 @@ class KissLoaderSequence(SequenceBase):
 
     def __len__(self) -> int:
         return self._count
+
+    def _no_frames(self) -> str:
+        """Why a recording with no frames is refused, naming the file (and the topic it read)."""
+        if self.topic:
+            kind = getattr(self.dataset, "msgtype", "point cloud")
+            return f"{self.path}: no messages on {self.topic} ({kind}): the recording holds no point clouds"
+        return f"{self.path}: no point clouds: the {self.loader} loader found no frames in it"
 
     def close(self) -> None:
         """Release the recording (open files, a bag's database); frames cannot be read afterwards."""

@@ -8,14 +8,17 @@ poses are missing, while this loader must work without them and fail with messag
 from __future__ import annotations
 
 import os
+import re
+import secrets
 from pathlib import Path
 
-from vcr_odom.data.bin_scans import DEFAULT_BIN_COLUMNS, check_bin_size, check_columns
+from vcr_odom.data.bin_scans import DEFAULT_BIN_COLUMNS, check_bin_size, check_columns, decode_bin
 from vcr_odom.data.scans import (
     TIMES_FILE,
     ScanFileSequence,
     check_pose_count,
-    is_hidden,
+    describe_other_entries,
+    list_scan_entries,
     natural_sort_key,
     path_label,
     read_tr,
@@ -37,6 +40,8 @@ def resolve_data_root(option: str | os.PathLike[str] | None) -> Path:
     """
     if option is not None and str(option) != "":
         source, value = "--data-root", str(option)
+        if os.environ.get(DATA_ROOT_ENV) == value:  # a CLI that fills the option from the variable
+            source = f"--data-root or ${DATA_ROOT_ENV} (both {value})"
     elif os.environ.get(DATA_ROOT_ENV):
         source, value = f"${DATA_ROOT_ENV}", os.environ[DATA_ROOT_ENV]
     else:
@@ -58,12 +63,42 @@ def normalise_seq(seq: str | int) -> str:
     return f"{int(text):02d}" if text.isdigit() else text
 
 
+STAGING_SUFFIXES = (".writing", ".old")
+"""``vcr-odom synth`` writes a sequence in ``sequences/.<seq>.<pid>.<token>.writing`` and renames the old
+one to ``.<seq>.<pid>.<token>.old`` (:func:`vcr_odom.synth.kitti_layout.write_sequence`): a killed synth
+leaves one behind, half written. Such folders are never sequences."""
+
+
+def staging_name(seq: str, suffix: str) -> str:
+    """The hidden name under which synth writes (``.writing``) or sets aside (``.old``) ``seq``."""
+    return f".{seq}.{os.getpid()}.{secrets.token_hex(4)}{suffix}"
+
+
+_STAGING = re.compile(r"^\.[A-Za-z0-9_-]+\.\d+\.[0-9a-f]{8}(\.writing|\.old)$")
+
+
+def is_staging(path: Path) -> bool:
+    """True for a synth staging folder (named by :func:`staging_name`) or anything inside one."""
+    return any(_STAGING.match(part) for part in Path(os.path.abspath(path)).parts)
+
+
+def refuse_staging(path: Path) -> None:
+    """DataError when ``path`` is (in) a synth staging folder: its scans may be half written."""
+    if is_staging(path):
+        raise DataError(
+            f"{path} is in a folder synth was writing (or setting aside) when it stopped, not a "
+            "sequence: its scans may be half written. Run synth again, or remove it"
+        )
+
+
 def list_sequences(root: Path) -> list[str]:
-    """Names under ``<root>/sequences``, naturally sorted, for error messages that say what exists."""
+    """Names under ``<root>/sequences``, naturally sorted, for error messages that say what exists.
+    Hidden folders are not listed: synth's staging folders (:data:`STAGING_SUFFIXES`) are hidden."""
     sequences = root / "sequences"
     if not sequences.is_dir():
         return []
-    return sorted((p.name for p in sequences.iterdir() if p.is_dir()), key=natural_sort_key)
+    names = (p.name for p in sequences.iterdir() if p.is_dir() and not p.name.startswith("."))
+    return sorted(names, key=natural_sort_key)
 
 
 def _sequence_folder(root: Path, seq: str | int) -> tuple[str, Path]:
@@ -79,6 +114,7 @@ def _sequence_folder(root: Path, seq: str | int) -> tuple[str, Path]:
     if not (root / "sequences" / name).is_dir() and (root / "sequences" / literal).is_dir():
         name = literal  # e.g. a folder really called "003"
     folder = root / "sequences" / name
+    refuse_staging(folder)
     if not folder.is_dir():
         found = list_sequences(root)
         listing = ", ".join(found) if found else "none"
@@ -122,7 +158,7 @@ class KittiSequence(ScanFileSequence):
         poses = None
         if self.poses_path is not None:
             poses = read_kitti_poses(self.poses_path)
-            check_pose_count(poses, len(self.files), self.poses_path, self.velodyne_path)
+            check_pose_count(poses, len(self.files), self.poses_path, self.velodyne_path, self._uncounted())
             if tr is None:
                 raise DataError(
                     f"{self.poses_path} holds camera-frame poses but {calib_path} "
@@ -139,12 +175,17 @@ class KittiSequence(ScanFileSequence):
         self._set_times(self.times_path, len(self.files), self.sequence_path, remedy)
 
     def _list_scans(self) -> list[Path]:
+        """The ``.bin`` scans in frame order; every size checked, the first scan's layout and values
+        too (:func:`~vcr_odom.data.bin_scans.decode_bin`): a wrong layout fails before a long run."""
         if not self.velodyne_path.is_dir():
             raise DataError(f"{self.sequence_path} has no velodyne/ folder of .bin scans")
-        scans = (path for path in self.velodyne_path.glob("*.bin") if not is_hidden(path))
-        files = sorted(scans, key=natural_sort_key)
+        files = list_scan_entries(self.velodyne_path, (".bin",))
         if not files:
             raise DataError(f"no .bin scans in {self.velodyne_path}")
-        for path in files:  # stat only: catches a truncated file before a long run, reads nothing
+        for path in files:  # stat only: catches a truncated file before a long run
             check_bin_size(path, self.bin_columns)
+        decode_bin(files[0], self.bin_columns)
         return files
+
+    def _uncounted(self) -> str:
+        return describe_other_entries(self.velodyne_path, (".bin",))

@@ -7,11 +7,16 @@ four float32 columns, and users' files come with five, or as float64.
 
 from __future__ import annotations
 
+import contextlib
+import errno
+import itertools
 import operator
 import os
 import re
+import stat
 import warnings
 from collections.abc import Iterator
+from decimal import Decimal
 from pathlib import Path
 
 import numpy as np
@@ -33,10 +38,79 @@ SECONDS_STEP_LIMIT = 1e3
 """A median frame step above this many seconds means the file is not in seconds (ns or us epochs)."""
 
 
-def natural_sort_key(path: str | os.PathLike[str]) -> tuple[tuple[int, int | str], ...]:
-    """Sort ``2.bin`` before ``10.bin``: digit runs compare as numbers, the rest as text."""
-    parts = re.split(r"(\d+)", Path(path).name)
-    return tuple((0, int(part)) if part.isdigit() else (1, part) for part in parts if part)
+_NUMBER = re.compile(r"(\d+(?:\.\d+)?)")
+
+
+def natural_sort_key(path: str | os.PathLike[str]) -> tuple[tuple[int, Decimal | str], ...]:
+    """Sort ``2.bin`` before ``10.bin`` and ``1700000000.05.bin`` before ``1700000000.4.bin``.
+
+    The rule: numbers in a name compare by value, the text between them as text. A number is a run of
+    digits, with its decimals when a dot and digits follow (timestamps: seconds.fraction), so names
+    that are all numbers sort as numbers, and ``scan_2``, ``scan_10`` by their numbers. A dot followed
+    by a letter (``.bin``) is text. Two names equal by this rule (``5.bin``, ``05.bin``) have no order:
+    :func:`sort_scan_files` refuses them.
+    """
+    parts = _NUMBER.split(Path(path).name)
+    return tuple((0, Decimal(part)) if part[0].isdigit() else (1, part) for part in parts if part)
+
+
+def sort_scan_files(files: list[Path]) -> list[Path]:
+    """``files`` by :func:`natural_sort_key`, or DataError naming two whose order would be a guess."""
+    ordered = sorted(files, key=lambda path: (natural_sort_key(path), path.name))
+    for first, second in itertools.pairwise(ordered):
+        if natural_sort_key(first) == natural_sort_key(second):
+            raise DataError(
+                f"{first} and {second}: two scans with the same number, so their frame order is a "
+                "guess; rename or remove one (names sort by the value of their numbers)"
+            )
+    return ordered
+
+
+_NO_SKIP = (
+    "frames are never skipped (every later frame would take the wrong pose and time): repair or remove it"
+)
+
+
+def check_scan_entry(entry: Path) -> None:
+    """DataError naming ``entry`` (named like a scan) when it is not a readable file: a broken symbolic
+    link, a link loop, a folder. Skipping it would shift every later frame's number, and so its pose
+    and timestamp, by one."""
+    try:
+        mode = entry.stat().st_mode
+    except OSError as error:
+        if error.errno == errno.ELOOP:
+            what = "a symbolic link loop"
+        elif entry.is_symlink():
+            what = f"a broken symbolic link (to {os.readlink(entry)}, which does not exist)"
+        else:
+            what = f"unreadable ({error.strerror})"
+        raise DataError(f"{entry}: named like a scan but {what}; {_NO_SKIP}") from error
+    if stat.S_ISDIR(mode):
+        raise DataError(f"{entry}: named like a scan but a folder, not a scan file; {_NO_SKIP}")
+    if not stat.S_ISREG(mode):
+        raise DataError(f"{entry}: named like a scan but not a regular file; {_NO_SKIP}")
+
+
+def list_scan_entries(folder: Path, suffixes: tuple[str, ...]) -> list[Path]:
+    """The scan files of ``folder`` (by suffix, any case; hidden files are not scans), in frame order;
+    DataError naming any entry named like a scan that is not a readable file (:func:`check_scan_entry`)
+    or two whose order is a guess (:func:`sort_scan_files`)."""
+    entries = [p for p in folder.iterdir() if p.suffix.lower() in suffixes and not is_hidden(p)]
+    for entry in entries:
+        check_scan_entry(entry)
+    return sort_scan_files(entries)
+
+
+def describe_other_entries(folder: Path, suffixes: tuple[str, ...]) -> str:
+    """``; not counted as scans there: a.txt, ._0.bin`` (what is not a frame), for count mismatches."""
+    others = sorted(
+        (p.name for p in folder.iterdir() if p.suffix.lower() not in suffixes or is_hidden(p)),
+        key=natural_sort_key,
+    )
+    if not others:
+        return ""
+    shown = ", ".join(others[:5]) + (f" and {len(others) - 5} more" if len(others) > 5 else "")
+    return f"; not counted as scans there: {shown}"
 
 
 def is_hidden(path: Path) -> bool:
@@ -114,6 +188,11 @@ def read_tr(calib_path: Path, *, required: bool) -> NDArray[np.float64] | None:
             raise DataError(f"{calib_path}: no 'Tr:' line (the velodyne -> camera transform)")
         return None
     tr = calib["Tr"].copy()
+    if not np.isfinite(tr).all():
+        raise DataError(
+            f"{calib_path}:{_line_of(calib_path, 'Tr')}: 'Tr' holds a NaN or infinite value; expected "
+            "12 finite numbers (the velodyne -> camera transform, 3x4)"
+        )
     rotation = tr[:3, :3]
     if not np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-4) or np.linalg.det(rotation) < 0:
         raise DataError(f"{calib_path}: 'Tr' rotation is not orthonormal (not a rigid transform)")
@@ -122,12 +201,25 @@ def read_tr(calib_path: Path, *, required: bool) -> NDArray[np.float64] | None:
     return project_to_se3(tr)
 
 
-def check_pose_count(poses: NDArray[np.float64], count: int, poses_path: Path, scans: Path) -> None:
-    """One pose per scan file, or a DataError naming both counts (a mismatch would misalign them all)."""
+def _line_of(path: Path, key: str) -> int | str:
+    """The line number of ``key:`` in a ``KEY: numbers`` file (for messages), or ``?``."""
+    with contextlib.suppress(OSError, UnicodeDecodeError):
+        for number, line in enumerate(path.read_text().splitlines(), start=1):
+            if line.partition(":")[0].strip() == key:
+                return number
+    return "?"
+
+
+def check_pose_count(
+    poses: NDArray[np.float64], count: int, poses_path: Path, scans: Path, others: str = ""
+) -> None:
+    """One pose per scan file, or a DataError naming both counts (a mismatch would misalign them all)
+    and ``others``, the folder's entries that were not counted (:func:`describe_other_entries`): a scan
+    saved under another name is the usual cause."""
     if len(poses) != count:
         raise DataError(
             f"{poses_path}: {len(poses)} poses but {count} scan files in {scans}; "
-            "the poses file must have one line per scan"
+            f"the poses file must have one line per scan{others}"
         )
 
 
@@ -159,6 +251,10 @@ class SequenceBase:
 
     def _load(self, position: int) -> Points:
         raise NotImplementedError
+
+    def _uncounted(self) -> str:
+        """The source's entries not counted as frames, for count mismatches ("" where it has none)."""
+        return ""
 
     def __iter__(self) -> Iterator[Points]:
         for index in range(len(self)):
@@ -226,7 +322,7 @@ class SequenceBase:
         pose_array = None
         if poses_path is not None:
             pose_array = read_kitti_poses(poses_path)
-            check_pose_count(pose_array, len(self), poses_path, where)
+            check_pose_count(pose_array, len(self), poses_path, where, self._uncounted())
         self._set_poses(pose_array, tr, camera_frame=tr is not None)
 
     def _set_poses(

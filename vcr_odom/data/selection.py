@@ -10,7 +10,7 @@ from pydantic import Field
 from vcr_odom.data import DEFAULT_BIN_COLUMNS, LidarSequence, open_sequence
 from vcr_odom.data.bin_scans import MAX_BIN_COLUMNS
 from vcr_odom.data.kiss_loaders import LOADERS, KissLoaderSequence
-from vcr_odom.errors import ConfigError
+from vcr_odom.errors import ConfigError, DataError
 from vcr_odom.settings import Settings
 
 
@@ -92,4 +92,9 @@ class FrameSelection(Settings):
         )
 
     def indices(self, sequence: LidarSequence) -> list[int]:
+        """The selected frames; a DataError naming the source when it has none (an empty recording),
+        where ``--frames``/``--stride`` would otherwise be blamed for selecting "0 frame(s) of 0"."""
+        if len(sequence) == 0:
+            where = getattr(sequence, "sequence_path", None) or sequence.name
+            raise DataError(f"{where}: no frames to read ({sequence.name} is empty)")
         return select_frames(len(sequence), self.frames, self.stride)
