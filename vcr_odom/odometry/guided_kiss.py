@@ -71,8 +71,13 @@ class KissFramePreparer:
 def voxelize(config: KISSConfig, frame: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """kiss-icp's ``KissICP.voxelize`` for a configuration, without an instance (the per-frame work runs
     ahead of the chain): the registration's source and the map's down-sampled frame."""
-    downsample = voxel_down_sample(frame, config.mapping.voxel_size * 0.5)
-    return voxel_down_sample(downsample, config.mapping.voxel_size * 1.5), downsample
+    return voxelize_at(frame, config.mapping.voxel_size)
+
+
+def voxelize_at(frame: np.ndarray, voxel_size: float) -> tuple[np.ndarray, np.ndarray]:
+    """kiss-icp's two grids for a map voxel of ``voxel_size``: half of it for the map, 1.5x for the source."""
+    downsample = voxel_down_sample(frame, voxel_size * 0.5)
+    return voxel_down_sample(downsample, voxel_size * 1.5), downsample
 
 
 @dataclass

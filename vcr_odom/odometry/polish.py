@@ -28,6 +28,7 @@ from vcr_odom.odometry.guided_kiss import (
     motion_difference,
     within_basin,
 )
+from vcr_odom.odometry.polish_voxel import density_voxel, with_voxel
 from vcr_odom.registration.base import RegistrationResult
 from vcr_odom.registration.kiss import kiss_config, kiss_input
 from vcr_odom.registration.open3d_icp import Open3dIcp
@@ -186,7 +187,8 @@ class KissIcpPolish:
 
     ``keep_prediction``: kiss-icp's constant-velocity prediction stays a start and the global estimate
     is a second one (``polish_start``: ``prediction`` or ``global``); False: the global estimate
-    replaces the prediction.
+    replaces the prediction. ``adapt_voxel``: the first frame picks the map voxel from its density
+    (:func:`~vcr_odom.odometry.polish_voxel.density_voxel`); False keeps ``config``'s.
     """
 
     name = "kiss-icp"
@@ -194,11 +196,14 @@ class KissIcpPolish:
     """kiss-icp's pre-processing holds Python's GIL: done in a second thread it only slows the chain.
     Nor does a second process gain on two cores: kiss-icp's registration already keeps both busy."""
 
-    def __init__(self, config: KISSConfig | None = None, keep_prediction: bool = True) -> None:
+    def __init__(
+        self, config: KISSConfig | None = None, keep_prediction: bool = True, adapt_voxel: bool = True
+    ) -> None:
         self.config = config or polish_kiss_config()
         self.keep_prediction = keep_prediction
         self.kiss = GuidedKissICP(self.config)
         self._preparer = KissFramePreparer(self.config)
+        self._voxel_open = adapt_voxel
 
     def prepare(self, points: Points) -> KissFrame:
         """Finite xyz as float64 (as :class:`KissIcpOdometry` feeds kiss-icp), pre-processed and
@@ -208,7 +213,23 @@ class KissIcpPolish:
             warnings.warn(
                 "kiss-icp polish: empty frame, the global estimate is kept", DataWarning, stacklevel=3
             )
+        elif self._voxel_open:
+            self._choose_voxel(frame)
         return self._preparer(frame)
+
+    def _choose_voxel(self, frame: np.ndarray) -> None:
+        """The first non-empty frame fixes the map voxel for the run (kiss-icp's map keeps one grid)."""
+        self._voxel_open = False
+        voxel = density_voxel(frame, self.config)
+        if voxel != self.config.mapping.voxel_size:
+            self.config = with_voxel(self.config, voxel)
+            self.kiss = GuidedKissICP(self.config)
+            self._preparer = KissFramePreparer(self.config)
+
+    @property
+    def voxel_size(self) -> float:
+        """The map voxel in use (chosen on the first frame unless ``adapt_voxel=False``)."""
+        return float(self.config.mapping.voxel_size)
 
     def start(self, frame: KissFrame) -> None:
         """A new map, seeded with the first frame at the identity."""

@@ -1,0 +1,80 @@
+"""The kiss-icp polish's voxel from the first frame's density: spinning 64-beam scans keep kiss-icp's own,
+sparse clouds get a finer one that gives the registration a spinning scan's share of points, and a
+cloud thinned coarser than that keeps kiss-icp's, whose map could not hold more of it anyway."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from vcr_odom.data import open_sequence
+from vcr_odom.odometry.polish import KissIcpPolish, polish_kiss_config
+from vcr_odom.odometry.polish_voxel import (
+    SPACING_FACTOR,
+    TARGET_SOURCE_POINTS,
+    VOXEL_STEP,
+    density_voxel,
+    source_points,
+)
+
+
+def _walls(spacing: float, rng: np.random.Generator) -> np.ndarray:
+    """A street canyon seen from its middle, sampled on a grid of ``spacing`` with a little jitter: two
+    facades 8 m to each side, a wall 40 m ahead, and the road (what a narrow-field keyframe holds)."""
+    along = np.arange(0.0, 40.0, spacing)
+    up = np.arange(0.0, 10.0, spacing)
+    a, u = np.meshgrid(along, up, indexing="ij")
+    left = np.stack([a.ravel(), np.full(a.size, 8.0), u.ravel() - 1.7], axis=1)
+    right = left * [1.0, -1.0, 1.0]
+    across = np.arange(-8.0, 8.0, spacing)
+    c, u2 = np.meshgrid(across, up, indexing="ij")
+    ahead = np.stack([np.full(c.size, 40.0), c.ravel(), u2.ravel() - 1.7], axis=1)
+    c3, a3 = np.meshgrid(across, along, indexing="ij")
+    road = np.stack([a3.ravel(), c3.ravel(), np.full(c3.size, -1.7)], axis=1)
+    cloud = np.concatenate([left, right, ahead, road])
+    return cloud + rng.normal(scale=0.01, size=cloud.shape)
+
+
+@pytest.mark.filterwarnings("ignore:.*no timestamps")
+def test_real_64_beam_scans_keep_kiss_icps_voxel(kitti_sample_root: Path) -> None:
+    sequence = open_sequence("00", data_root=kitti_sample_root)
+    config = polish_kiss_config()
+    for index in range(0, len(sequence), 10):
+        points = np.asarray(sequence.frame(index))[:, :3].astype(np.float64)
+        assert density_voxel(points, config) == config.mapping.voxel_size, index
+
+
+def test_a_sparse_cloud_gets_the_largest_voxel_that_gives_the_target_points() -> None:
+    cloud = _walls(0.25, np.random.default_rng(0))
+    config = polish_kiss_config()
+    kiss_voxel = config.mapping.voxel_size
+    assert source_points(cloud, kiss_voxel) < TARGET_SOURCE_POINTS  # the premise: sparse at 1 m
+    voxel = density_voxel(cloud, config)
+    assert voxel < kiss_voxel
+    assert source_points(cloud, voxel) >= TARGET_SOURCE_POINTS
+    assert source_points(cloud, voxel / VOXEL_STEP) < TARGET_SOURCE_POINTS  # the largest on the ladder
+    assert config.mapping.voxel_size == kiss_voxel  # the caller's configuration is not changed
+
+
+def test_a_cloud_thinned_coarser_than_the_grid_keeps_a_grid_above_its_spacing() -> None:
+    cloud = _walls(0.7, np.random.default_rng(1))
+    config = polish_kiss_config()
+    assert source_points(cloud, config.mapping.voxel_size) < TARGET_SOURCE_POINTS  # sparse at 1 m, yet
+    assert VOXEL_STEP * config.mapping.voxel_size < SPACING_FACTOR * 0.7  # no finer grid is allowed
+    assert density_voxel(cloud, config) == config.mapping.voxel_size
+
+
+@pytest.mark.parametrize("adapt", [True, False])
+def test_the_polish_fixes_its_voxel_on_the_first_frame(adapt: bool) -> None:
+    rng = np.random.default_rng(2)
+    sparse = _walls(0.25, rng)
+    polish = KissIcpPolish(adapt_voxel=adapt)
+    first = polish.prepare(sparse)
+    expected = density_voxel(sparse, polish_kiss_config()) if adapt else 1.0
+    assert polish.voxel_size == pytest.approx(expected)
+    assert len(first.source) == source_points(sparse, expected)
+    dense = _walls(0.05, rng)  # a later, denser frame does not move the grid the map is built on
+    polish.prepare(dense)
+    assert polish.voxel_size == pytest.approx(expected)

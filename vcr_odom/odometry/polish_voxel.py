@@ -1,0 +1,77 @@
+"""The kiss-icp polish's voxel size, from the first frame's density.
+
+kiss-icp derives its voxel from the maximum range (``max_range / 100``: 1 m at 100 m), a rule made for
+spinning scans, where a 1 m grid still leaves its registration about 2,000 points. A solid-state scan,
+a 16-beam scan or a keyframe cloud voxel-thinned by a SLAM system leaves it 500-1,300, and the polish
+then registers few, coarse points: on such drives a finer grid halves the polish's per-pair error
+(docs/benchmarks.md, "The polish on sparse scans"). The voxel is chosen once, on the first frame,
+because kiss-icp's local map needs one grid for the whole run.
+"""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+from kiss_icp.config import KISSConfig
+from kiss_icp.kiss_icp import get_preprocessor
+from scipy.spatial import cKDTree
+
+from vcr_odom.odometry.guided_kiss import voxelize_at
+
+SPARSE_SOURCE_POINTS = 1400
+"""A first frame that leaves kiss-icp's registration fewer points than this at its own voxel is sparse.
+The sparsest of the 60 real HDL-64E scans of the KITTI sample leaves 1,556, so 64-beam scans keep
+kiss-icp's voxel (and the polish its speed)."""
+
+TARGET_SOURCE_POINTS = 2000
+"""A sparse frame gets the largest voxel that leaves at least this many: about what a 64-beam scan
+leaves at 1 m (the KITTI sample's median: 1,918), so the polish registers as much as on such a scan."""
+
+VOXEL_STEP = 0.7
+"""Each smaller candidate voxel is this fraction of the one before (about half the grid cells' area)."""
+
+MIN_VOXEL_FRACTION = 0.25
+"""Never finer than this fraction of kiss-icp's voxel (0.25 m at 100 m): the polish only gets slower."""
+
+SPACING_FACTOR = 2.0
+"""Nor finer than this many times the cloud's own median point spacing: the map keeps points on half a
+voxel, and a map grid finer than the points themselves (a keyframe cloud thinned to 0.7 m by its SLAM
+system) has nothing more to give; on such a cloud a finer grid made the polish worse, not better."""
+
+
+def source_points(frame: np.ndarray, voxel_size: float) -> int:
+    """How many points kiss-icp's registration gets from ``frame`` (already cropped) at ``voxel_size``."""
+    source, _ = voxelize_at(frame, voxel_size)
+    return len(source)
+
+
+def median_spacing(points: np.ndarray) -> float:
+    """Median distance from a point to its nearest neighbour."""
+    if len(points) < 2:
+        return 0.0
+    distances, _ = cKDTree(points).query(points, k=2)
+    return float(np.median(distances[:, 1]))
+
+
+def density_voxel(frame: np.ndarray, config: KISSConfig) -> float:
+    """kiss-icp's own voxel for a frame dense enough for it; for a sparse one the largest voxel on the
+    ladder (``VOXEL_STEP``) that leaves :data:`TARGET_SOURCE_POINTS`, no finer than the floors
+    (:data:`MIN_VOXEL_FRACTION`, :data:`SPACING_FACTOR`)."""
+    voxel = float(config.mapping.voxel_size)
+    cropped = get_preprocessor(config).preprocess(frame, np.array([]), np.eye(4))
+    if len(cropped) == 0 or source_points(cropped, voxel) >= SPARSE_SOURCE_POINTS:
+        return voxel
+    floor = max(voxel * MIN_VOXEL_FRACTION, SPACING_FACTOR * median_spacing(cropped))
+    while voxel * VOXEL_STEP >= floor:
+        voxel *= VOXEL_STEP
+        if source_points(cropped, voxel) >= TARGET_SOURCE_POINTS:
+            break
+    return voxel
+
+
+def with_voxel(config: KISSConfig, voxel_size: float) -> KISSConfig:
+    """A copy of ``config`` with another map voxel (the caller's configuration is left as it is)."""
+    changed = copy.deepcopy(config)
+    changed.mapping.voxel_size = float(voxel_size)
+    return changed
