@@ -2,10 +2,10 @@
 
 A *miss* is a frame where the polished motion of ``METHOD@every-frame`` differs from the on-doubt
 run's by more than 0.2 m or 1 deg (the issue's definition); every-frame is the reference because it
-polishes from the network's start as well as the prior's on every pair. Each doubt rule is a
-``--variant NAME=field:value,...`` of :class:`vcr_odom.odometry.chain.DoubtRule` fields (``default``
-is the default rule as it ships); ``--baseline SPEC`` adds other methods' rows (accuracy and
-speed only). Not a test: run
+polishes from the network's start as well as the prior's on every pair. Each variant is a
+``--variant NAME=field:value,...`` of :class:`vcr_odom.odometry.chain.DoubtRule` fields and the polish's
+``adapt_voxel`` (``adapt_voxel:0``: kiss-icp's own voxel; ``default`` is the method as it ships);
+``--baseline SPEC`` adds other methods' rows (accuracy and speed only). Not a test: run
 
     .venv/bin/python benchmarks/doubt_misses.py --sequence ../shared/data/kitti-sample/sequences/00 \
         --sequence runs/synth/sequences/101 [--frames A:B] [--stride K] [--method vcr+kiss-icp] \
@@ -41,17 +41,27 @@ from vcr_odom.odometry.guided_kiss import motion_difference
 MISS_M, MISS_DEG = 0.2, 1.0
 
 
-def parse_variant(text: str) -> tuple[str, DoubtRule]:
-    """``name=field:value,field:value`` -> a DoubtRule with those fields changed from the default."""
+POLISH_FIELDS = {"adapt_voxel": bool}
+"""Variant fields that go to the polish instead of the doubt rule (``adapt_voxel:0``: kiss-icp's voxel)."""
+
+
+def parse_variant(text: str) -> tuple[str, DoubtRule, dict[str, Any]]:
+    """``name=field:value,field:value`` -> a DoubtRule with those fields changed from the default, and
+    the polish options among them (:data:`POLISH_FIELDS`)."""
     name, _, body = text.partition("=")
     fields = {f.name: f.type for f in dataclasses.fields(DoubtRule)}
     changes: dict[str, Any] = {}
+    polish: dict[str, Any] = {}
     for item in filter(None, body.split(",")):
         key, _, value = item.partition(":")
-        if key not in fields:
-            raise SystemExit(f"--variant {text!r}: unknown field {key!r}; fields: {', '.join(fields)}")
-        changes[key] = int(value) if fields[key] in ("int", int) else float(value)
-    return name, dataclasses.replace(DoubtRule(), **changes)
+        if key in POLISH_FIELDS:
+            polish[key] = POLISH_FIELDS[key](int(value))
+        elif key in fields:
+            changes[key] = int(value) if fields[key] in ("int", int) else float(value)
+        else:
+            known = ", ".join([*fields, *POLISH_FIELDS])
+            raise SystemExit(f"--variant {text!r}: unknown field {key!r}; fields: {known}")
+    return name, dataclasses.replace(DoubtRule(), **changes), polish
 
 
 def misses(reference: np.ndarray, candidate: np.ndarray) -> list[int]:
@@ -75,9 +85,16 @@ def score(poses: np.ndarray, gt: np.ndarray | None) -> dict[str, float]:
 
 
 def run_one(
-    sequence: Any, indices: list[int], spec: str, consult: str | None, doubt: DoubtRule | None
+    sequence: Any,
+    indices: list[int],
+    spec: str,
+    consult: str | None,
+    doubt: DoubtRule | None,
+    polish: dict[str, Any] | None = None,
 ) -> dict:
     options: dict[str, Any] = {} if consult is None else {"consult": consult, "doubt": doubt}
+    if polish:
+        options["polish_options"] = polish
     method = build_odometry(spec, **options)
     run = run_odometry(sequence, method, indices)
     asked = [info.get("global", "every frame") != "not needed" for info in run.per_frame_info[1:]]
@@ -103,7 +120,7 @@ def main() -> None:
     parser.add_argument("--markdown", type=Path, help="also write the table here as markdown")
     parser.add_argument("--label", default="", help="prefix of each row's sequence name (e.g. the stride)")
     args = parser.parse_args()
-    variants = [("default", DoubtRule()), *map(parse_variant, args.variant)]
+    variants = [("default", DoubtRule(), {}), *map(parse_variant, args.variant)]
     table = Table(title=f"{args.method}: on-doubt rules against every-frame (stride {args.stride})")
     for column in ("sequence", "rule", "asked %", "misses", "end-point %", "ATE m (SE3)", "frames/s"):
         table.add_column(column, justify="left" if column in ("sequence", "rule") else "right")
@@ -115,8 +132,8 @@ def main() -> None:
         gt = None if gt is None else gt[indices]
         reference = run_one(sequence, indices, args.method, "every-frame", None)
         results = [("every-frame", reference, [])]
-        for name, rule in variants:
-            result = run_one(sequence, indices, args.method, "on-doubt", rule)
+        for name, rule, polish in variants:
+            result = run_one(sequence, indices, args.method, "on-doubt", rule, polish)
             results.append((name, result, misses(reference["poses"], result["poses"])))
         for spec in args.baseline:
             results.append((spec, run_one(sequence, indices, spec, None, None), None))

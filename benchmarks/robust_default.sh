@@ -40,7 +40,7 @@ for spec in "${DRIVES[@]}"; do
   SYNTH+=(--sequence "$WORK/synth/sequences/$seed")
 done
 
-RULES=(--variant "fit only (before)=correction_m:0,correction_deg:0" --baseline kiss-icp)
+RULES=(--variant "kiss-icp voxel=adapt_voxel:0" --baseline kiss-icp)
 table() {  # label json [doubt_misses options...]
   local label=$1 json=$2
   shift 2
