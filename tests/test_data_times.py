@@ -82,10 +82,10 @@ def test_a_broken_times_txt_beside_the_scans_is_an_error_not_ignored(tmp_path, c
         FolderSequence(scans)
 
 
-def test_nanosecond_times_warn_that_seconds_are_expected(tmp_path):
+def test_nanosecond_times_are_refused_saying_that_seconds_are_expected(tmp_path):
     scans = write_bins(tmp_path / "scans", 3)
     write_times(tmp_path / "ns.txt", [1.6e18, 1.6e18 + 1e8, 1.6e18 + 2e8])
-    with pytest.warns(DataWarning, match=r"ns\.txt.*seconds.*nanoseconds"):
+    with pytest.raises(DataError, match=r"ns\.txt.*expected seconds.*nanoseconds"):
         FolderSequence(scans, times=tmp_path / "ns.txt")
 
 

@@ -89,17 +89,29 @@ def read_text(path: Path, expected: str) -> str:
         ) from None
 
 
+POSE_ROTATION_TOLERANCE = 1e-4
+"""Largest ``|R^T R - I|`` entry a pose file may hold: 7 printed digits (KITTI's files) leave about
+2e-7 and even 4 decimals stay under it, while a scaled or sheared block (which projection would quietly
+turn into some rotation) is over it."""
+
+POSE_TRANSLATION_LIMIT_M = 1e8
+"""Largest ``|x|``, ``|y|``, ``|z|`` a pose file may hold: UTM northings and Earth-centred coordinates
+stay under 1e7 m, so anything beyond is a broken file, refused before it overflows the metrics."""
+
+
 def read_kitti_poses(path: str | os.PathLike[str]) -> NDArray[np.float64]:
     """Read a KITTI pose file (12 numbers a line, row-major 3x4) into ``(M, 4, 4)``.
 
     Rotations are projected onto SO(3): the files' 7 printed digits otherwise show up as false
-    rotation in relative poses (see :func:`vcr_odom.geometry.project_to_se3`). A block too far from a
-    rotation for printing to explain is refused rather than projected.
+    rotation in relative poses (see :func:`vcr_odom.geometry.project_to_se3`). A block that printing
+    cannot explain (scaled, sheared, mirrored) and a non-finite or absurdly far position are refused
+    with the file and line, rather than projected or scored.
     """
     path = Path(path)
     if not path.is_file():
         raise DataError(f"poses file not found: {path}")
-    rows = []
+    rows: list[list[float]] = []
+    line_numbers: list[int] = []
     for line_number, line in enumerate(read_text(path, EXPECTED_POSES).splitlines(), start=1):
         if not line.strip():
             continue
@@ -110,18 +122,50 @@ def read_kitti_poses(path: str | os.PathLike[str]) -> NDArray[np.float64]:
         if len(values) != 12:
             raise DataError(f"{path}:{line_number}: expected 12 numbers (a 3x4 pose), got {len(values)}")
         rows.append(values)
+        line_numbers.append(line_number)
     if not rows:
         raise DataError(f"poses file is empty: {path}")
+    blocks = np.asarray(rows).reshape(-1, 3, 4)
+    _check_pose_blocks(path, blocks, line_numbers)
     poses = np.tile(np.eye(4), (len(rows), 1, 1))
-    poses[:, :3, :4] = np.asarray(rows).reshape(-1, 3, 4)
-    if not np.all(np.isfinite(poses)):
-        raise DataError(f"{path}: poses contain NaN or inf")
-    rotations = poses[:, :3, :3]
-    deviation = np.abs(np.swapaxes(rotations, 1, 2) @ rotations - np.eye(3)).max(axis=(1, 2))
-    if deviation.max() > 1e-3:
-        bad = int(np.argmax(deviation)) + 1
-        raise DataError(f"{path}: pose {bad} has a rotation block that is not a rotation matrix")
+    poses[:, :3, :4] = blocks
     return project_to_se3(poses)
+
+
+def _check_pose_blocks(path: Path, blocks: NDArray[np.float64], line_numbers: list[int]) -> None:
+    """Refuse the first line whose 3x4 block is not a pose, naming the file, the line and why."""
+
+    def refuse(index: int, why: str) -> None:
+        raise DataError(f"{path}: pose {index + 1} (line {line_numbers[index]}) {why}")
+
+    finite = np.all(np.isfinite(blocks), axis=(1, 2))
+    if not finite.all():
+        refuse(int(np.argmin(finite)), "contains NaN or inf; expected 12 finite numbers")
+    far = np.abs(blocks[:, :, 3]).max(axis=1) > POSE_TRANSLATION_LIMIT_M
+    if far.any():
+        index = int(np.argmax(far))
+        refuse(
+            index,
+            f"has a position {np.abs(blocks[index, :, 3]).max():.3g} m from the origin; expected "
+            f"metres, under {POSE_TRANSLATION_LIMIT_M:.0e} m",
+        )
+    rotations = blocks[:, :, :3]
+    expected = f"expected a rotation (R^T R = I to {POSE_ROTATION_TOLERANCE:g}, determinant +1)"
+    # A rotation's entries lie in [-1, 1]: larger ones are refused before their products overflow.
+    oversized = np.abs(rotations).max(axis=(1, 2)) > 1.0 + POSE_ROTATION_TOLERANCE
+    safe = np.where(oversized[:, None, None], 0.0, rotations)
+    deviation = np.abs(np.swapaxes(safe, 1, 2) @ safe - np.eye(3)).max(axis=(1, 2))
+    not_rotation = oversized | (deviation > POSE_ROTATION_TOLERANCE)
+    if not_rotation.any():
+        refuse(
+            int(np.argmax(not_rotation)), f"has a rotation block that is not a rotation matrix; {expected}"
+        )
+    mirrored = np.linalg.det(rotations) < 0
+    if mirrored.any():
+        refuse(
+            int(np.argmax(mirrored)),
+            f"has a rotation block that is not a rotation matrix (a mirror, determinant -1); {expected}",
+        )
 
 
 def format_kitti_poses(poses: ArrayLike) -> str:
@@ -177,9 +221,10 @@ def read_times(path: str | os.PathLike[str]) -> NDArray[np.float64]:
     Odometry turns frame gaps into speeds, so a wrong stamp is a wrong velocity rather than a cosmetic
     problem: every rule is checked here and a broken file raises :class:`DataError` naming the file, the
     line and what was expected. Blank lines are skipped (line numbers still count them); a second column,
-    a header word, NaN/inf, a repeated or decreasing stamp (an all-zero file included) and bytes that are
-    not UTF-8 text are all errors. Whether there is one line per frame is the caller's check (it knows
-    the frame count): see :func:`vcr_odom.data.scans.load_times`.
+    a header word, NaN/inf, a repeated or decreasing stamp (an all-zero file included), bytes that are
+    not UTF-8 text and steps that no sensor's frame period explains (under 0.1 ms, or a median over
+    10 s: milliseconds or nanoseconds read as seconds) are all errors. Whether there is one line per
+    frame is the caller's check (it knows the frame count): see :func:`vcr_odom.data.scans.load_times`.
     """
     path = Path(path)
     if not path.is_file():
@@ -187,6 +232,7 @@ def read_times(path: str | os.PathLike[str]) -> NDArray[np.float64]:
     text = read_text(path, "a times.txt holds one number (seconds) per line")
     expected = "one number (seconds) per line, strictly increasing"
     stamps: list[float] = []
+    line_numbers: list[int] = []
     previous_line = 0
     for number, line in enumerate(text.splitlines(), start=1):
         fields = line.split()
@@ -209,10 +255,49 @@ def read_times(path: str | os.PathLike[str]) -> NDArray[np.float64]:
                 f"{stamps[-1]!r} on line {previous_line}"
             )
         stamps.append(value)
+        line_numbers.append(number)
         previous_line = number
     if not stamps:
         raise DataError(f"{path}: no timestamps (expected {expected})")
+    _check_frame_steps(path, np.asarray(stamps, dtype=np.float64), line_numbers)
     return np.asarray(stamps, dtype=np.float64)
+
+
+MIN_FRAME_STEP_S = 1e-4
+"""Shortest step between two frames a times file may hold: no LiDAR sweeps at 10 kHz, so a shorter
+step is two stamps for one frame or a wrong unit, and odometry would read it as an impossible speed."""
+
+MAX_MEDIAN_FRAME_STEP_S = 10.0
+"""Longest typical (median) step: scanners sweep at 1-100 Hz, so a median over 10 s is a file in
+milliseconds (10 Hz gives 100), microseconds or nanoseconds, not a sensor read in seconds."""
+
+
+def _check_frame_steps(path: Path, stamps: NDArray[np.float64], line_numbers: list[int]) -> None:
+    """Refuse steps no sensor's frame period explains, saying that seconds are expected."""
+    if len(stamps) < 2:
+        return
+    steps = np.diff(stamps)
+    too_short = steps < MIN_FRAME_STEP_S
+    if too_short.any():
+        first = int(np.argmax(too_short))
+        raise DataError(
+            f"{path}:{line_numbers[first + 1]}: {steps[first]:.3g} s after the stamp on line "
+            f"{line_numbers[first]} cannot be a frame period; expected seconds, at least "
+            f"{MIN_FRAME_STEP_S:g} s between frames"
+        )
+    median = float(np.median(steps))
+    if median > MAX_MEDIAN_FRAME_STEP_S:
+        raise DataError(
+            f"{path}: the median step between frames is {median:.3g}, which as seconds would be a "
+            f"{1 / median:.2g} Hz sensor; expected seconds (this looks like {_likely_unit(median)})"
+        )
+
+
+def _likely_unit(median_step: float) -> str:
+    """The unit a scanner's 0.01-1 s frame period takes to print as ``median_step``."""
+    if median_step < 1e4:
+        return "milliseconds"
+    return "microseconds" if median_step < 1e7 else "nanoseconds"
 
 
 def write_times(path: str | os.PathLike[str], times: ArrayLike) -> Path:
@@ -228,12 +313,24 @@ def format_tum_trajectory(poses: ArrayLike, timestamps: ArrayLike) -> str:
     """TUM text (``t x y z qx qy qz qw``) through evo's own quaternion conversion."""
     from evo.core.transformations import quaternion_from_matrix
 
+    stamps = np.asarray(timestamps, dtype=np.float64)
+    decimals = tum_stamp_decimals(stamps)
     lines = []
-    for pose, stamp in zip(np.asarray(poses, dtype=np.float64), np.asarray(timestamps), strict=True):
+    for pose, stamp in zip(np.asarray(poses, dtype=np.float64), stamps, strict=True):
         qw, qx, qy, qz = quaternion_from_matrix(pose)
         x, y, z = pose[:3, 3]
-        lines.append(f"{stamp:.6f} {x:.9f} {y:.9f} {z:.9f} {qx:.9f} {qy:.9f} {qz:.9f} {qw:.9f}\n")
+        lines.append(f"{stamp:.{decimals}f} {x:.9f} {y:.9f} {z:.9f} {qx:.9f} {qy:.9f} {qz:.9f} {qw:.9f}\n")
     return "".join(lines)
+
+
+def tum_stamp_decimals(stamps: NDArray[np.float64]) -> int:
+    """Decimals that keep distinct stamps distinct: microseconds (TUM's usual 6) unless the shortest
+    step needs more, so sub-microsecond steps never print as one repeated stamp."""
+    steps = np.diff(stamps)
+    steps = steps[steps > 0]
+    if not len(steps):
+        return 6
+    return int(np.clip(np.ceil(-np.log10(steps.min())) + 2, 6, 15))
 
 
 def write_tum_trajectory(path: str | os.PathLike[str], poses: ArrayLike, timestamps: ArrayLike) -> Path:
