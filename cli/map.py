@@ -14,7 +14,7 @@ from vcr_odom.cli.options import (
 )
 from vcr_odom.cli.progress import EXIT_CODES_HELP, console, exit_interrupted, frame_progress
 from vcr_odom.cli.run import reject_unused_options
-from vcr_odom.cli.tables import _f
+from vcr_odom.cli.tables import _f, ate_cell
 from vcr_odom.data.selection import FrameSelection
 from vcr_odom.loops.pipeline import MapOutcome, MapSettings, map_sequence
 from vcr_odom.odometry.polish import POLISHES
@@ -112,14 +112,14 @@ def map_command(ctx: click.Context, selection: FrameSelection, **options: object
 def _scores_table(outcome: MapOutcome) -> Table:
     """Odometry and map side by side: the figures loop closure changes."""
     table = Table(title=f"{outcome.sequence.name}: odometry and map", header_style="bold")
-    for column in ("", "ATE RMSE [m]", "end-point [%]", "t_rel [%]", "r_rel [deg/100 m]"):
+    for column in ("", "ATE origin / SE(3) [m]", "end-point [%]", "t_rel [%]", "r_rel [deg/100 m]"):
         table.add_column(column, justify="right" if column else "left")
     for label, report in (("odometry", outcome.odometry_report), ("map", outcome.report)):
         if report is None:
             continue
         table.add_row(
             label,
-            _f(report.ate_rpe.ate_trans_rmse_m, 3),
+            ate_cell(report),
             _f(report.endpoint.trans_error_percent, 2),
             _f(report.drift.t_rel_percent, 2),
             _f(report.drift.r_rel_deg_per_100m, 2),

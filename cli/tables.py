@@ -17,6 +17,19 @@ def _f(value: float, digits: int = 3) -> str:
     return "–" if value is None or not math.isfinite(value) else f"{value:.{digits}f}"
 
 
+ALIGNMENT_NAMES = {
+    "origin": "first poses aligned, KITTI convention",
+    "se3": "SE(3)-aligned, as evo_ape -a and kiss-icp",
+    "none": "no alignment",
+}
+"""How a table names each ATE alignment: the same trajectory reads differently under each."""
+
+ATE_CAPTION = (
+    "ATE origin / SE(3): RMSE with the first poses aligned (KITTI convention) / after evo's SE(3) "
+    "Umeyama alignment (what evo_ape -a and kiss-icp report)"
+)
+
+
 def report_table(report: EvaluationReport, title: str = "Evaluation") -> Table:
     """One method against ground truth, every figure with its unit."""
     table = Table(title=title, show_header=True, header_style="bold")
@@ -47,7 +60,12 @@ def report_table(report: EvaluationReport, title: str = "Evaluation") -> Table:
         ("DCP-style (paper Table III)", ""),
         ("  Euler RMSE / MAE [deg]", f"{_f(dcp.euler_rmse_deg)} / {_f(dcp.euler_mae_deg)}"),
         ("  translation MSE / MAE [m², m]", f"{_f(dcp.trans_mse_m2, 5)} / {_f(dcp.trans_mae_m)}"),
-        (f"ATE RMSE [m] ({ate.ate_alignment} alignment)", _f(ate.ate_trans_rmse_m)),
+        (f"ATE RMSE [m] ({ALIGNMENT_NAMES[ate.ate_alignment]})", _f(ate.ate_trans_rmse_m)),
+        *(
+            [(f"ATE RMSE [m] ({ALIGNMENT_NAMES['se3']})", _f(ate.ate_se3_trans_rmse_m))]
+            if ate.ate_alignment != "se3"
+            else []
+        ),
         (
             f"RPE RMSE (delta {ate.rpe_delta_frames}) [m] / [deg]",
             f"{_f(ate.rpe_trans_rmse_m)} / {_f(ate.rpe_rot_rmse_deg)}",
@@ -78,7 +96,7 @@ class ComparisonRow:
 def comparison_table(rows: Sequence[ComparisonRow], title: str) -> Table:
     """Methods side by side on the same frames; a method that loses track shows it in every column.
     A ``closures`` column appears when a SLAM method (KISS-SLAM) is among the rows."""
-    table = Table(title=title, header_style="bold")
+    table = Table(title=title, header_style="bold", caption=ATE_CAPTION)
     slam = any(row.closures is not None for row in rows)
     headers = (
         "method",
@@ -89,7 +107,7 @@ def comparison_table(rows: Sequence[ComparisonRow], title: str) -> Table:
         "t_rel [%]",
         "r_rel [deg/100m]",
         "end-point [%]",
-        "ATE [m]",
+        "ATE origin / SE(3) [m]",
         "flagged",
         *(("closures",) if slam else ()),
         "fps",
@@ -116,12 +134,20 @@ def comparison_table(rows: Sequence[ComparisonRow], title: str) -> Table:
             _f(drift.t_rel_percent, 2),
             _f(drift.r_rel_deg_per_100m, 2),
             _f(row.report.endpoint.trans_error_percent, 2),
-            _f(row.report.ate_rpe.ate_trans_rmse_m),
+            ate_cell(row.report),
             str(row.flagged),
             *closures,
             _f(row.frames_per_second, 1),
         )
     return table
+
+
+def ate_cell(report: EvaluationReport) -> str:
+    """``first-pose-aligned / SE(3)-aligned`` ATE RMSE (a compare row is always aligned at the first
+    pose; a report from elsewhere with another alignment still shows its SE(3) figure second)."""
+    ate = report.ate_rpe
+    first = ate.ate_trans_rmse_m if ate.ate_alignment == "origin" else None
+    return f"{_f(first)} / {_f(ate.ate_se3_trans_rmse_m)}"
 
 
 def pair_protocol_table(results: Mapping[str, PairProtocolResult], title: str) -> Table:

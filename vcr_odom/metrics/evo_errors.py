@@ -5,7 +5,8 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 from typing import Any, Literal
 
-from numpy.typing import ArrayLike
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from vcr_odom.errors import ConfigError, DataError
 from vcr_odom.geometry import project_to_se3
@@ -24,6 +25,9 @@ class AteRpe:
     ate_trans_mean_m: float
     ate_trans_median_m: float
     ate_trans_max_m: float
+    ate_se3_trans_rmse_m: float | None
+    """The ATE RMSE after evo's SE(3) Umeyama alignment whatever ``ate_alignment`` is: the figure
+    ``evo_ape -a`` and kiss-icp print, so a table can sit beside published numbers (None under 3 poses)."""
     rpe_delta_frames: int
     rpe_trans_rmse_m: float
     rpe_rot_rmse_deg: float
@@ -58,19 +62,19 @@ def ate_rpe(
         raise ConfigError(f"rpe_delta_frames={rpe_delta_frames} needs more than {len(gt)} poses")
 
     gt, est = project_to_se3(gt), project_to_se3(est)
+    if alignment == "se3" and len(gt) < 3:
+        raise DataError(f"SE(3) alignment needs at least 3 poses, got {len(gt)}")
     traj_gt = PosePath3D(poses_se3=list(gt))
     traj_est = PosePath3D(poses_se3=list(est))
-    traj_est_aligned = PosePath3D(poses_se3=list(est))
-    if alignment == "origin":
-        traj_est_aligned.align_origin(traj_gt)
-    elif alignment == "se3":
-        if len(gt) < 3:
-            raise DataError(f"SE(3) alignment needs at least 3 poses, got {len(gt)}")
-        traj_est_aligned.align(traj_gt, correct_scale=False)
-
-    ape = evo_metrics.APE(evo_metrics.PoseRelation.translation_part)
-    ape.process_data((traj_gt, traj_est_aligned))
-    ape_stats = ape.get_all_statistics()
+    ape_stats = _ape_statistics(est, traj_gt, alignment)
+    if ape_stats is None:
+        raise DataError(
+            "SE(3) alignment is not possible: the ground-truth positions are degenerate (all on one "
+            "line or one point), so evo's Umeyama fit has no unique rotation; use --align origin"
+        )
+    se3_stats = ape_stats if alignment == "se3" else None
+    if se3_stats is None and len(gt) >= 3:
+        se3_stats = _ape_statistics(est, traj_gt, "se3")
 
     def rpe(relation: Any) -> float:
         metric = evo_metrics.RPE(
@@ -85,7 +89,30 @@ def ate_rpe(
         ate_trans_mean_m=float(ape_stats["mean"]),
         ate_trans_median_m=float(ape_stats["median"]),
         ate_trans_max_m=float(ape_stats["max"]),
+        ate_se3_trans_rmse_m=None if se3_stats is None else float(se3_stats["rmse"]),
         rpe_delta_frames=rpe_delta_frames,
         rpe_trans_rmse_m=rpe(evo_metrics.PoseRelation.translation_part),
         rpe_rot_rmse_deg=rpe(evo_metrics.PoseRelation.rotation_angle_deg),
     )
+
+
+def _ape_statistics(
+    est: NDArray[np.float64], traj_gt: Any, alignment: AteAlignment
+) -> dict[str, float] | None:
+    """evo's APE (translation part) statistics of ``est`` after ``alignment`` onto ``traj_gt``; None
+    where evo finds the SE(3) fit degenerate (a straight or stationary ground truth)."""
+    from evo.core import metrics as evo_metrics
+    from evo.core.geometry import GeometryException
+    from evo.core.trajectory import PosePath3D
+
+    aligned = PosePath3D(poses_se3=list(est))
+    if alignment == "origin":
+        aligned.align_origin(traj_gt)
+    elif alignment == "se3":
+        try:
+            aligned.align(traj_gt, correct_scale=False)
+        except GeometryException:
+            return None
+    ape = evo_metrics.APE(evo_metrics.PoseRelation.translation_part)
+    ape.process_data((traj_gt, aligned))
+    return ape.get_all_statistics()
