@@ -103,6 +103,9 @@ def test_a_later_scan_of_another_layout_is_refused_when_read(tmp_path, scan):
     np.testing.assert_array_equal(sequence.frame(0), scan)
     with pytest.raises(DataError, match=r"000001\.bin: not 4 float32 values.*--bin-columns 5"):
         sequence.frame(1)
+    with_ring(scan).tofile(folder / "000003.bin")  # the last scan is read when opening too
+    with pytest.raises(DataError, match=r"000003\.bin: not 4 float32 values.*--bin-columns 5"):
+        FolderSequence(folder)
 
 
 def test_a_kitti_sequence_of_another_layout_is_refused_too(tmp_path, scan):

@@ -146,7 +146,8 @@ class FolderSequence(ScanFileSequence):
         if self.kind == ".bin":
             for file in self.files:  # stat only, as for KITTI: fail before a long run
                 check_bin_size(file, self.bin_columns)
-            decode_bin(self.files[0], self.bin_columns)  # its layout and values, before a long run
+            for file in dict.fromkeys((self.files[0], self.files[-1])):  # before a long run too:
+                decode_bin(file, self.bin_columns)  # the layout and values of the first and last scan
 
         self.poses_path = Path(poses).expanduser() if poses is not None else None
         self.calib_path = Path(calib).expanduser() if calib is not None else None

@@ -175,8 +175,8 @@ class KittiSequence(ScanFileSequence):
         self._set_times(self.times_path, len(self.files), self.sequence_path, remedy)
 
     def _list_scans(self) -> list[Path]:
-        """The ``.bin`` scans in frame order; every size checked, the first scan's layout and values
-        too (:func:`~vcr_odom.data.bin_scans.decode_bin`): a wrong layout fails before a long run."""
+        """The ``.bin`` scans in frame order; every size checked, and the first and last scans' layout and
+        values (:func:`~vcr_odom.data.bin_scans.decode_bin`): a wrong layout fails before a long run."""
         if not self.velodyne_path.is_dir():
             raise DataError(f"{self.sequence_path} has no velodyne/ folder of .bin scans")
         files = list_scan_entries(self.velodyne_path, (".bin",))
@@ -184,7 +184,8 @@ class KittiSequence(ScanFileSequence):
             raise DataError(f"no .bin scans in {self.velodyne_path}")
         for path in files:  # stat only: catches a truncated file before a long run
             check_bin_size(path, self.bin_columns)
-        decode_bin(files[0], self.bin_columns)
+        for path in dict.fromkeys((files[0], files[-1])):
+            decode_bin(path, self.bin_columns)
         return files
 
     def _uncounted(self) -> str:
