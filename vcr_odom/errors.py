@@ -32,3 +32,14 @@ class MissingExtraError(ConfigError):
     def status(self) -> str:
         """The short form, for a table cell: ``not installed: pip install 'vcr-odom[EXTRA]'``."""
         return f"not installed: pip install 'vcr-odom[{self.extra}]'"
+
+
+class Interrupted(KeyboardInterrupt):
+    """A signal asking a command to stop (SIGTERM from ``timeout``, systemd or a cluster scheduler;
+    SIGHUP from a closed terminal; Ctrl-C), raised as Ctrl-C's KeyboardInterrupt is, so every ``except
+    KeyboardInterrupt`` that keeps what was done keeps it for these too. ``label`` names it."""
+
+    def __init__(self, signum: int, label: str) -> None:
+        self.signum = signum
+        self.label = label
+        super().__init__(label)

@@ -12,7 +12,9 @@ atomically and the marker last: still never half a file, but no longer one unit.
 The marker says whether the unit is ``complete`` or ``partial`` (a checkpoint, Ctrl-C, an error
 part-way), with how many frames it holds and why. A folder is itself made in a hidden staging folder
 and renamed into place with its first marker, so no folder without a marker ever appears, and
-``latest`` only moves to a folder that holds a trajectory.
+``latest`` only moves to a folder that holds a trajectory. Interrupting signals (Ctrl-C, SIGTERM,
+SIGHUP) that arrive while a unit or a folder is being put in place wait until it is
+(:func:`deferred_interrupts`), so an interrupt never leaves one half-made.
 """
 
 from __future__ import annotations
@@ -23,8 +25,10 @@ import platform
 import re
 import secrets
 import shutil
+import signal
 import subprocess
 import sys
+import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from datetime import datetime
@@ -32,7 +36,7 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any, Literal
 
-from vcr_odom.errors import ConfigError, DataError
+from vcr_odom.errors import ConfigError, DataError, Interrupted
 from vcr_odom.io import atomic_write_text
 from vcr_odom.jsonsafe import json_safe
 
@@ -53,6 +57,8 @@ MARKER = "result.json"
 Status = Literal["complete", "partial"]
 _UNIT_LINK = ".unit"
 _UNIT_PREFIX = ".unit-"
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+"""The signals that ask a command to stop, as Ctrl-C does (see :class:`~vcr_odom.errors.Interrupted`)."""
 
 
 # -- checking where results go, before any work ------------------------------------------------------
@@ -122,27 +128,60 @@ def create_result_folder(
     root.mkdir(parents=True, exist_ok=True)
     _remove_abandoned_staging(root)
     stem = f"{datetime.now().strftime('%Y%m%d-%H%M%S')}_{_safe(label)}"
-    staging = root / f".{stem}.{os.getpid()}.{secrets.token_hex(4)}.creating"
+    with deferred_interrupts():  # an interrupt after the rename would leave a folder nobody knows of
+        staging = _staged_folder(root, stem, config, frames_selected)
+        try:
+            return _rename_to_free_name(staging, root / stem)
+        except BaseException:
+            shutil.rmtree(staging, ignore_errors=True)
+            raise
+
+
+def _rename_to_free_name(staging: Path, folder: Path) -> Path:
+    """Rename ``staging`` to ``folder``, or ``folder-2``, ``-3``, ... where taken."""
+    stem, suffix = folder.name, 1
+    while True:
+        if not folder.exists():
+            try:
+                os.rename(staging, folder)
+                return folder
+            except OSError:
+                if not folder.exists():  # not taken between the check and the rename: a real error
+                    raise
+        suffix += 1
+        folder = folder.parent / f"{stem}-{suffix}"
+
+
+def create_marked_folder(folder: str | os.PathLike[str], frames_selected: int = 0) -> Path:
+    """Make ``folder`` (a comparison's folder for one method) with a first ``partial`` marker, in one
+    rename as :func:`create_result_folder` does, so that even a folder left by a SIGKILL before the
+    method's first frame says what it is. An existing ``folder`` is left as it is."""
+    folder = Path(folder)
+    if folder.exists():
+        return folder
+    with deferred_interrupts():
+        staging = _staged_folder(folder.parent, folder.name, None, frames_selected)
+        try:
+            os.rename(staging, folder)
+        except OSError:  # made meanwhile by someone else: theirs stands
+            shutil.rmtree(staging, ignore_errors=True)
+    return folder
+
+
+def _staged_folder(parent: Path, stem: str, config: dict[str, Any] | None, frames_selected: int) -> Path:
+    """A hidden folder in ``parent`` holding ``config.json`` (when given) and a first marker, to be
+    renamed into place (:func:`_remove_abandoned_staging` clears those of a killed process)."""
+    staging = parent / f".{stem}.{os.getpid()}.{secrets.token_hex(4)}.creating"
     staging.mkdir()
     try:
         if config is not None:
             write_json(staging / "config.json", provenance(config))
         with result_unit(staging) as unit:
             write_marker(unit, "partial", 0, frames_selected, "started: no frame finished yet")
-        suffix = 1
-        folder = root / stem
-        while True:
-            if not folder.exists():
-                try:
-                    os.rename(staging, folder)
-                    return folder
-                except OSError:  # taken between the check and the rename
-                    pass
-            suffix += 1
-            folder = root / f"{stem}-{suffix}"
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise
+    return staging
 
 
 def _remove_abandoned_staging(root: Path) -> None:
@@ -207,17 +246,22 @@ def result_unit(folder: str | os.PathLike[str]) -> Iterator[Path]:
     """Yields an empty hidden folder for the files of one unit; on leaving without an error they are
     published together (see the module's docstring). Write the marker (:func:`write_marker`) last.
 
-    On an error (or Ctrl-C) inside, nothing is published and the folder keeps its previous unit.
+    On an error (or Ctrl-C) inside, nothing is published and the folder keeps its previous unit; once
+    published, the unit stays whatever comes after.
     """
     folder = Path(folder)
     staging = _new_unit_folder(folder)
+    published = False
     try:
         yield staging
         if not (staging / MARKER).is_file():
             raise RuntimeError(f"a result unit is published with its marker ({MARKER}) written last")
-        _publish(folder, staging)
+        with deferred_interrupts():
+            _publish(folder, staging)
+            published = True
     except BaseException:
-        shutil.rmtree(staging, ignore_errors=True)
+        if not published:
+            shutil.rmtree(staging, ignore_errors=True)
         raise
 
 
@@ -295,10 +339,38 @@ def read_marker(folder: str | os.PathLike[str]) -> dict[str, Any] | None:
 
 
 def interruption_reason(error: BaseException) -> str:
-    """What a ``partial`` marker says about why a command stopped."""
+    """What a ``partial`` marker says about why a command stopped: ``interrupted (SIGTERM)``, ..."""
+    if isinstance(error, Interrupted):
+        return f"interrupted ({error.label})"
     if isinstance(error, KeyboardInterrupt):
         return "interrupted (Ctrl-C)"
     return f"stopped by an error: {type(error).__name__}: {error}".strip()
+
+
+@contextmanager
+def deferred_interrupts() -> Iterator[None]:
+    """Hold Ctrl-C, SIGTERM and SIGHUP until the block is done, then let them act as they would have.
+
+    Why: an interrupt in the middle of putting a unit in place, or of writing the partial result of a
+    command already stopping, would leave it half-made or lose it. Outside the main thread (where
+    Python runs signal handlers) it holds nothing, and needs not.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    held: list[int] = []
+    previous = {}
+    for signum in STOP_SIGNALS:
+        handler = signal.getsignal(signum)
+        if handler is not None:  # None: set outside Python, which it cannot restore
+            previous[signum] = signal.signal(signum, lambda number, _frame: held.append(number))
+    try:
+        yield
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+        for signum in dict.fromkeys(held):
+            signal.raise_signal(signum)
 
 
 # -- provenance -------------------------------------------------------------------------------------

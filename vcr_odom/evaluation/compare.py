@@ -7,6 +7,7 @@ gets the outcomes and renders them.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass, field
 from functools import partial
@@ -38,7 +39,9 @@ from vcr_odom.registration.base import SequentialOdometry
 from vcr_odom.registration.vcr import VcrRegistrar
 from vcr_odom.results import (
     check_output_folder,
+    create_marked_folder,
     create_result_folder,
+    deferred_interrupts,
     interruption_reason,
     point_latest_at,
     remove_result_folder,
@@ -154,19 +157,35 @@ def run_comparison(settings: CompareSettings, progress: ProgressFactory | None =
         frames_selected=len(indices),
     )
     comparison = Comparison(folder, sequence, indices)
+
+    def method_done(outcomes: list[MethodOutcome]) -> None:  # a SIGKILL later still leaves it said
+        comparison.odometry = outcomes
+        publish_comparison(
+            comparison,
+            f"checkpoint after {len(outcomes)} of {len(odometries)} methods; the comparison was still "
+            "going (if nothing newer replaced this, it was stopped or killed)",
+        )
+
     try:
         if odometries:
-            comparison.odometry = compare_methods(sequence, indices, folder, odometries, progress)
+            comparison.odometry = compare_methods(
+                sequence, indices, folder, odometries, progress, method_done
+            )
             comparison.interrupted = any(o.run.interrupted for o in comparison.odometry)
         if kinds and not comparison.interrupted:
             compare_pairs(settings, comparison, progress, kinds)
     except BaseException as error:
-        if comparison.odometry or comparison.pairs:
-            publish_comparison(comparison, interruption_reason(error))
-        else:
-            remove_result_folder(folder)
+        with deferred_interrupts():  # a further interrupt waits until what finished is written
+            if comparison.odometry or comparison.pairs:
+                publish_comparison(comparison, interruption_reason(error))
+            else:
+                remove_result_folder(folder)
         raise
-    publish_comparison(comparison, "interrupted (Ctrl-C)" if comparison.interrupted else "")
+    stopped = next(
+        (o.run.interruption or "interrupted" for o in comparison.odometry if o.run.interrupted), ""
+    )
+    with deferred_interrupts() if stopped else nullcontext():
+        publish_comparison(comparison, stopped)
     return comparison
 
 
@@ -214,10 +233,12 @@ def compare_methods(
     folder: Path,
     odometries: dict[str, Method],
     progress: ProgressFactory | None = None,
+    method_done: Callable[[list[MethodOutcome]], None] | None = None,
 ) -> list[MethodOutcome]:
     """Each method over the same frames, one sub-folder each (itself a result unit, see
-    :func:`~vcr_odom.odometry.run.run_and_save`). An :class:`Unavailable` method gets a row with its
-    status and no folder.
+    :func:`~vcr_odom.odometry.run.run_and_save`, with a marker from the start). An
+    :class:`Unavailable` method gets a row with its status and no folder. ``method_done(outcomes)``
+    is called after each method that finished, before the next starts.
 
     Ctrl-C stops the method in progress and skips the rest; what finished is kept. ``latest`` moves to
     the comparison once its first method holds a trajectory.
@@ -228,7 +249,7 @@ def compare_methods(
             outcomes.append(MethodOutcome(spec, True, _no_run(spec), None, odometry.error.status))
             continue
         on_saved = partial(point_latest_at, folder.parent, folder)
-        (folder / spec).mkdir(exist_ok=True)  # no marker until its first unit; the comparison's says partial
+        create_marked_folder(folder / spec, len(frame_indices))
         if isinstance(odometry, Mapped):
             mapped = map_and_save(
                 sequence,
@@ -245,6 +266,8 @@ def compare_methods(
             )
             if mapped.odometry.interrupted:
                 break
+            if method_done is not None:
+                method_done(outcomes)
             continue
         needs_guess = _needs_guess(odometry)
         with _progress(progress, spec, len(frame_indices)) as advance:
@@ -254,6 +277,8 @@ def compare_methods(
         outcomes.append(MethodOutcome(spec, needs_guess, run, report))
         if run.interrupted:
             break
+        if method_done is not None:
+            method_done(outcomes)
     return outcomes
 
 
@@ -271,7 +296,7 @@ def publish_comparison(comparison: Comparison, reason: str = "") -> None:
     folder, sequence, indices = comparison.folder, comparison.sequence, comparison.frame_indices
     rows = [o for o in comparison.odometry if not o.status]
     skipped = {o.method: o.status for o in comparison.odometry if o.status}
-    done = min((len(o.run.frame_indices) for o in rows), default=0)
+    done = max((len(o.run.frame_indices) for o in rows), default=0)  # a finished method: all of them
     with result_unit(folder) as unit:
         if rows:
             stride = indices[1] - indices[0] if len(indices) > 1 else 1

@@ -162,7 +162,7 @@ def map_and_save(
         phase.seconds["odometry"] = run.wall_seconds
         if run.interrupted or not run.frame_indices:
             checkpoints.save(
-                f"interrupted (Ctrl-C) during the odometry after {checkpoints.frames_done} of "
+                f"{run.interruption or 'interrupted'} during the odometry after {checkpoints.frames_done} of "
                 f"{len(indices)} frames: no loop closure"
             )
             if not run.frame_indices:

@@ -25,6 +25,7 @@ from vcr_odom.errors import ConfigError
 from vcr_odom.geometry import Transform
 from vcr_odom.odometry.chain import Odometry, PreparedFrame, Step
 from vcr_odom.registration.base import FinishingOdometry, SequentialOdometry
+from vcr_odom.results import interruption_reason
 
 
 @dataclass
@@ -37,6 +38,7 @@ class OdometryRun:
     (kiss-icp); ``optimise`` for a method that revises its trajectory at the end (KISS-SLAM's pose
     graph); ``waiting`` (for the producer); ``bookkeeping``, the rest of the wall time.
     ``slam``: what such a method reported (loop closures, its settings); empty for odometry.
+    ``interruption``: why an ``interrupted`` run stopped (``interrupted (SIGTERM)``, ...), for its marker.
     """
 
     method: str
@@ -48,6 +50,7 @@ class OdometryRun:
     interrupted: bool = False
     per_frame_info: list[dict[str, Any]] = field(default_factory=list)
     slam: dict[str, Any] = field(default_factory=dict)
+    interruption: str = ""
 
     @property
     def flagged_frames(self) -> list[int]:
@@ -161,7 +164,8 @@ def run_odometry(
     on_frame: Callable[[int, Transform, Points], None] | None = None,
     prefetch: int = 2,
 ) -> OdometryRun:
-    """Run ``method`` over the chosen frames. Ctrl-C stops cleanly and returns the partial trajectory.
+    """Run ``method`` over the chosen frames. Ctrl-C (or SIGTERM, SIGHUP raised as
+    :class:`~vcr_odom.errors.Interrupted`) stops cleanly and returns the partial trajectory.
 
     ``on_frame(index, pose, points)`` sees each frame once, as loaded (for progress, checkpoints, maps).
     ``prefetch``: chunks loaded (and, where :attr:`Odometry.prepare_ahead`, prepared) ahead in a
@@ -181,7 +185,7 @@ def run_odometry(
     infos: list[dict[str, Any]] = []
     used: list[int] = []
     started = time.perf_counter()
-    interrupted = False
+    interruption = ""
     batch = method.batch_size if isinstance(method, Odometry) else 1
     frame_indices = list(frame_indices)
     chunks = [frame_indices[i : i + batch] for i in range(0, len(frame_indices), batch)]
@@ -204,20 +208,20 @@ def run_odometry(
                     used.append(index)
                     if on_frame is not None:
                         on_frame(index, step.pose, points)
-        except KeyboardInterrupt:
-            interrupted = True
+        except KeyboardInterrupt as error:
+            interruption = interruption_reason(error)
         finally:
             stop.set()
             if hasattr(items, "close"):
                 items.close()
     slam: dict[str, Any] = {}
-    if poses and not interrupted and isinstance(method, FinishingOdometry):
+    if poses and not interruption and isinstance(method, FinishingOdometry):
         try:
             with timer("optimise"):
                 finished = method.finish(used)
             poses, slam = list(finished.poses), finished.summary
-        except KeyboardInterrupt:  # Ctrl-C while optimising: the online poses, marked interrupted
-            interrupted = True
+        except KeyboardInterrupt as error:  # while optimising: the online poses, marked interrupted
+            interruption = f"{interruption_reason(error)} while optimising"
     wall = time.perf_counter() - started
     stages = {name: seconds for name, seconds in timer.seconds.items() if not name.startswith("_")}
     consumer = sum(stages.get(name, 0.0) for name in ("register", "advance", "step", "optimise", "waiting"))
@@ -233,7 +237,8 @@ def run_odometry(
         timestamps=np.asarray(sequence.timestamps)[used] if used else np.empty(0),
         stage_seconds=stages,
         wall_seconds=wall,
-        interrupted=interrupted,
+        interrupted=bool(interruption),
         per_frame_info=infos,
         slam=slam,
+        interruption=interruption,
     )

@@ -32,11 +32,14 @@ from vcr_odom.registration.base import SequentialOdometry
 from vcr_odom.results import (
     check_output_folder,
     create_result_folder,
+    deferred_interrupts,
     holds_trajectory,
     interruption_reason,
     point_latest_at,
     remove_result_folder,
+    result_unit,
     write_json,
+    write_marker,
 )
 from vcr_odom.settings import Settings
 
@@ -160,7 +163,8 @@ def run_and_save(
 
     Every :data:`~vcr_odom.odometry.outputs.CHECKPOINT_EVERY_FRAMES` frames the trajectory so far is
     published as ``partial``; an error or Ctrl-C part-way publishes what was done as ``partial``
-    (with the reason) before it propagates. ``on_saved`` runs after each publication that holds frames.
+    (with the reason) before it propagates, and further interrupts wait until it is written.
+    ``on_saved`` runs after each publication that holds frames.
     With ``voxel_map`` each registered scan is added to it as it comes (the frame is not read twice);
     the plot then shows the trajectory over a top-down view of the map.
     """
@@ -177,20 +181,44 @@ def run_and_save(
     try:
         run = run_odometry(sequence, method, frame_indices, on_frame=on_frame)
     except BaseException as error:
-        checkpoints.save(
-            f"{interruption_reason(error)} (after {checkpoints.frames_done} of {selected} frames)"
-        )
+        with deferred_interrupts():
+            checkpoints.save(
+                f"{interruption_reason(error)} (after {checkpoints.frames_done} of {selected} frames)"
+            )
         if isinstance(error, Exception):
             _name_the_frame(error, method, frame_indices, checkpoints.frames_done)
         raise
-    if len(run.poses) == 0:
+    done = len(run.frame_indices)
+    reason = (
+        f"{run.interruption or 'interrupted'} after {done} of {selected} frames" if run.interrupted else ""
+    )
+    if done == 0:
+        if run.interrupted:  # the folder's first marker said "started": say why it holds nothing
+            with deferred_interrupts(), result_unit(folder) as unit:
+                write_marker(unit, "partial", 0, selected, reason, method=run.method)
         return run, None
+    # Stopped already: a further interrupt waits until what was done is written (scores, plot).
+    with deferred_interrupts() if run.interrupted else nullcontext():
+        return _score_and_save(run, sequence, folder, selected, reason, plot_title, voxel_map, on_saved)
+
+
+def _score_and_save(
+    run: OdometryRun,
+    sequence: LidarSequence,
+    folder: Path,
+    selected: int,
+    reason: str,
+    plot_title: str,
+    voxel_map: VoxelMap | None,
+    on_saved: Callable[[], Any] | None,
+) -> tuple[OdometryRun, EvaluationReport | None]:
+    """Score ``run`` where there is ground truth and publish it with its metrics and plot: ``complete``
+    when every one of the ``selected`` frames was done, else ``partial`` with ``reason``."""
     gt = ground_truth_for(sequence, run.frame_indices)
     report = evaluate(run.poses, gt) if gt is not None and len(run.poses) >= 2 else None
-    scores = report.to_dict() if report is not None else {"ground_truth": None}
+    scores = report.to_dict() if report is not None else unscored(gt is not None, len(run.poses))
     done = len(run.frame_indices)
     status = "partial" if run.interrupted or done < selected else "complete"
-    reason = f"interrupted (Ctrl-C) after {done} of {selected} frames" if run.interrupted else ""
 
     def scores_and_plot(unit: Path) -> None:
         write_json(unit / "metrics.json", {"run": run_summary(run), **scores})
@@ -213,18 +241,30 @@ def run_and_save(
             extras=scores_and_plot,
         )
     except BaseException as error:  # e.g. Ctrl-C while plotting: keep the trajectory, say so
-        save_trajectory(
-            folder,
-            run,
-            sequence,
-            frames_selected=selected,
-            status="partial",
-            reason=f"{interruption_reason(error)} while writing the scores and plot",
-        )
+        with deferred_interrupts():
+            save_trajectory(
+                folder,
+                run,
+                sequence,
+                frames_selected=selected,
+                status="partial",
+                reason=f"{interruption_reason(error)} while writing the scores and plot",
+            )
         raise
     if on_saved is not None:
         on_saved()
     return run, report
+
+
+def unscored(has_ground_truth: bool, frames: int) -> dict[str, Any]:
+    """``metrics.json``'s scores where there are none: no ground truth, or too few frames to score
+    (a run interrupted after its first frame), which is not the same thing."""
+    if not has_ground_truth:
+        return {"ground_truth": None}
+    return {
+        "ground_truth": "available",
+        "not_scored": f"too short to score: {frames} frame(s), 2 or more needed",
+    }
 
 
 def _name_the_frame(
