@@ -1,31 +1,123 @@
-"""The ``vcr-odom`` command: a thin click group; every command lives in its own module."""
+"""The ``vcr-odom`` command: a thin click group; every command lives in its own module.
+
+:func:`main`, the console script, first makes SIGTERM (``timeout``, systemd, cluster schedulers) and
+SIGHUP (a closed terminal) stop a command as Ctrl-C does, then imports the commands (torch, open3d:
+seconds), so an interrupt at any moment leaves with its exit code and no traceback. That is why this
+module imports nothing heavy at its top: ``cli``, the click group, is built on first use
+(``from vcr_odom.cli.main import cli`` still works).
+"""
 
 from __future__ import annotations
 
-import click
+import io
+import os
+import signal
+import sys
+from functools import cache
+from types import FrameType
+from typing import TYPE_CHECKING, Any
 
-from vcr_odom.cli.compare import compare
-from vcr_odom.cli.demo import demo
-from vcr_odom.cli.evaluate import evaluate
-from vcr_odom.cli.map import map_command
-from vcr_odom.cli.options import FriendlyGroup
-from vcr_odom.cli.progress import EXIT_CODES_HELP, show_warnings_on_console
-from vcr_odom.cli.run import run
-from vcr_odom.cli.synth import synth
-from vcr_odom.cli.train import cache, pretrain_command, train_command
+from vcr_odom.errors import Interrupted
 
+if TYPE_CHECKING:
+    import click
 
-@click.group(
-    cls=FriendlyGroup, context_settings={"help_option_names": ["-h", "--help"]}, epilog=EXIT_CODES_HELP
-)
-@click.version_option(package_name="vcr-odom")
-def cli() -> None:
-    """LiDAR odometry with VCR-Net and classical baselines, scored honestly against ground truth."""
-    show_warnings_on_console()
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+_stopping: list[int] = []
+"""The signal that is stopping the command, once one came (a list: set from a signal handler)."""
 
 
-for command in (run, map_command, evaluate, compare, synth, demo, cache, pretrain_command, train_command):
-    cli.add_command(command)
+def signal_label(signum: int) -> str:
+    """``Ctrl-C`` for SIGINT, else the signal's name (``SIGTERM``)."""
+    return "Ctrl-C" if signum == signal.SIGINT else signal.Signals(signum).name
+
+
+def stopping_signal() -> int | None:
+    """The signal that stopped this command (None: none came, as in tests calling ``cli`` directly)."""
+    return _stopping[0] if _stopping else None
+
+
+def stop_on_signals() -> None:
+    """Ctrl-C, SIGTERM and SIGHUP raise :class:`~vcr_odom.errors.Interrupted` (a KeyboardInterrupt,
+    so what was done is kept as for Ctrl-C); those that come after it are held: the command is already
+    stopping, and a second interrupt must not cut short the writing of what was done."""
+    for signum in STOP_SIGNALS:
+        signal.signal(signum, _stop)
+
+
+def _stop(signum: int, _frame: FrameType | None) -> None:
+    if _stopping:
+        os.write(2, b"vcr-odom: already stopping; writing what was done first (Ctrl-\\ abandons it)\n")
+        return
+    _stopping.append(signum)
+    raise Interrupted(signum, signal_label(signum))
+
+
+def main() -> None:
+    """The console script: signals first, then the commands, then the command line."""
+    stop_on_signals()
+    try:
+        try:
+            group = _group()
+        except KeyboardInterrupt:
+            signum = stopping_signal() or signal.SIGINT
+            sys.stderr.write(f"Interrupted ({signal_label(signum)}) while starting; nothing was written.\n")
+            sys.exit(128 + signum)
+        group(prog_name="vcr-odom")
+    finally:
+        if _stopping:  # done: ignored from here, or Python's exit (which restores the defaults) dies of one
+            for signum in STOP_SIGNALS:
+                signal.signal(signum, signal.SIG_IGN)
+
+
+@cache
+def _group() -> click.Group:
+    """The click group with every command (imports them all: seconds, for torch and open3d)."""
+    import click
+
+    from vcr_odom.cli.compare import compare
+    from vcr_odom.cli.demo import demo
+    from vcr_odom.cli.evaluate import evaluate
+    from vcr_odom.cli.map import map_command
+    from vcr_odom.cli.options import FriendlyGroup
+    from vcr_odom.cli.progress import EXIT_CODES_HELP, show_warnings_on_console
+    from vcr_odom.cli.run import run
+    from vcr_odom.cli.synth import synth
+    from vcr_odom.cli.train import cache as cache_command
+    from vcr_odom.cli.train import pretrain_command, train_command
+
+    @click.group(
+        cls=FriendlyGroup, context_settings={"help_option_names": ["-h", "--help"]}, epilog=EXIT_CODES_HELP
+    )
+    @click.version_option(package_name="vcr-odom")
+    def cli() -> None:
+        """LiDAR odometry with VCR-Net and classical baselines, scored honestly against ground truth."""
+        show_warnings_on_console()
+        if isinstance(sys.stdout, io.TextIOWrapper):  # a path that is not UTF-8 prints as "\udcff",
+            sys.stdout.reconfigure(errors="backslashreplace")  # not a crash after the work is done
+
+    commands = (
+        run,
+        map_command,
+        evaluate,
+        compare,
+        synth,
+        demo,
+        cache_command,
+        pretrain_command,
+        train_command,
+    )
+    for command in commands:
+        cli.add_command(command)
+    return cli
+
+
+def __getattr__(name: str) -> Any:
+    """``cli``, built on first use (see the module's docstring)."""
+    if name == "cli":
+        return _group()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 if __name__ == "__main__":
-    cli()
+    main()

@@ -12,8 +12,14 @@ from vcr_odom.cli.options import (
     sequence_options,
     vcr_options,
 )
-from vcr_odom.cli.progress import EXIT_CODES_HELP, console, exit_interrupted, frame_progress
-from vcr_odom.cli.run import reject_unused_options
+from vcr_odom.cli.progress import (
+    EXIT_CODES_HELP,
+    console,
+    exit_interrupted,
+    frame_progress,
+    interrupt_label,
+)
+from vcr_odom.cli.run import reject_unused_options, why_unscored
 from vcr_odom.cli.tables import _f, ate_cell
 from vcr_odom.data.selection import FrameSelection
 from vcr_odom.loops.pipeline import MapOutcome, MapSettings, map_sequence
@@ -90,11 +96,12 @@ def map_command(ctx: click.Context, selection: FrameSelection, **options: object
     reject_unused_options(ctx, [settings.method if settings.polish is None else settings.spec])
     outcome = map_sequence(settings, progress=frame_progress)
     if outcome.folder is None:
-        exit_interrupted("Interrupted before the first frame; no result folder kept.")
+        exit_interrupted(f"Interrupted ({interrupt_label()}) before the first frame; no result folder kept.")
     if outcome.odometry.interrupted:
         exit_interrupted(
-            f"Interrupted during the odometry; its {len(outcome.odometry.frame_indices)} frames are kept "
-            f"in {outcome.folder} (result.json: partial)."
+            f"Interrupted ({interrupt_label()}) during the odometry; its "
+            f"{len(outcome.odometry.frame_indices)} frames are kept in {outcome.folder} "
+            "(result.json: partial)."
         )
     accepted = [d for d in outcome.decisions if d.accepted]
     console.print(
@@ -104,7 +111,7 @@ def map_command(ctx: click.Context, selection: FrameSelection, **options: object
     if outcome.report is not None and outcome.odometry_report is not None:
         console.print(_scores_table(outcome))
     else:
-        console.print("No ground truth for this sequence: trajectory written without scores.")
+        console.print(why_unscored(outcome.sequence.gt_poses is not None, len(outcome.poses)))
     seconds = ", ".join(f"{phase} {value:.1f} s" for phase, value in outcome.seconds.items())
     console.print(f"{len(outcome.poses)} frames ({seconds}); results in {outcome.folder}")
 

@@ -21,10 +21,11 @@ F = TypeVar("F", bound=Callable[..., Any])
 class FriendlyGroup(click.Group):
     """The one exit-code convention (``vcr_odom.cli.progress``): the library's own errors become one
     clear line instead of a traceback, exit 2 for a ``ConfigError`` (a bad option, as click's own
-    usage errors) and 1 for the rest; Ctrl-C that reaches here exits 130 (what was done is kept)."""
+    usage errors) and 1 for the rest; Ctrl-C that reaches here exits 130 (SIGTERM 143, SIGHUP 129:
+    what was done is kept)."""
 
     def invoke(self, ctx: click.Context) -> Any:
-        from vcr_odom.cli.progress import EXIT_USAGE, exit_interrupted
+        from vcr_odom.cli.progress import EXIT_USAGE, exit_interrupted, interrupt_label
         from vcr_odom.errors import ConfigError
 
         try:
@@ -35,7 +36,7 @@ class FriendlyGroup(click.Group):
                 failure.exit_code = EXIT_USAGE
             raise failure from error
         except KeyboardInterrupt:
-            exit_interrupted("Interrupted (Ctrl-C).")
+            exit_interrupted(f"Interrupted ({interrupt_label()}).")
 
 
 def describe_loaders() -> str:

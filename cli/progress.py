@@ -3,6 +3,7 @@ one line each, and the exit codes (documented in ``vcr-odom --help`` and docs/us
 
 from __future__ import annotations
 
+import signal
 import sys
 import warnings
 from collections.abc import Callable, Iterator
@@ -19,6 +20,8 @@ from rich.progress import (
     TimeElapsedColumn,
     TimeRemainingColumn,
 )
+
+from vcr_odom.cli.main import signal_label, stopping_signal
 
 # Piped output (logs, CI, README tables) gets a wide console instead of rich's 80-column default.
 console = Console() if sys.stdout.isatty() else Console(width=170)
@@ -62,20 +65,31 @@ EXIT_ERROR = 1
 """The library's own error (:class:`~vcr_odom.errors.VcrOdomError`): one line naming the input."""
 EXIT_USAGE = 2
 """A bad option or combination of options: click's own checks and the library's ``ConfigError``."""
-EXIT_INTERRUPTED = 130
-"""Ctrl-C (128 + SIGINT, as shells report it): what was done is kept, marked ``partial``."""
+EXIT_INTERRUPTED = 128 + signal.SIGINT
+"""Ctrl-C (128 + SIGINT = 130, as shells report it): what was done is kept, marked ``partial``."""
+EXIT_TERMINATED = 128 + signal.SIGTERM
+"""SIGTERM (143: ``timeout``, ``kill``, systemd, cluster schedulers), handled as Ctrl-C is."""
+EXIT_HANGUP = 128 + signal.SIGHUP
+"""SIGHUP (129: the terminal closed), handled as Ctrl-C is."""
 
 EXIT_CODES_HELP = (
     "\b\nExit codes:\n"
     f"  {EXIT_DONE:<4} done\n"
     f"  {EXIT_ERROR:<4} error: an input or output the command could not use (one line, no traceback)\n"
     f"  {EXIT_USAGE:<4} usage: a bad option, or options that do not go together\n"
-    f"  {EXIT_INTERRUPTED:<4} interrupted (Ctrl-C): the partial result is kept, marked partial in its result.json"
+    f"  {EXIT_INTERRUPTED:<4} interrupted (Ctrl-C): the partial result is kept, marked partial in its result.json\n"
+    f"  {EXIT_TERMINATED:<4} stopped by SIGTERM (timeout, kill, systemd, a scheduler): as Ctrl-C\n"
+    f"  {EXIT_HANGUP:<4} stopped by SIGHUP (the terminal closed): as Ctrl-C"
 )
 
 
+def interrupt_label() -> str:
+    """What stopped the command, for its messages: ``Ctrl-C``, ``SIGTERM`` or ``SIGHUP``."""
+    return signal_label(stopping_signal() or signal.SIGINT)
+
+
 def exit_interrupted(message: str) -> NoReturn:
-    """Say what was kept and leave with :data:`EXIT_INTERRUPTED` (a script must not take a run cut
-    short by Ctrl-C for a finished one)."""
+    """Say what was kept and leave with 128 + the signal that stopped the command (130 for Ctrl-C,
+    143 for SIGTERM, 129 for SIGHUP): a script must not take a run cut short for a finished one."""
     notes.print(f"[yellow]{message}", highlight=False)
-    raise click.exceptions.Exit(EXIT_INTERRUPTED)
+    raise click.exceptions.Exit(128 + (stopping_signal() or signal.SIGINT))

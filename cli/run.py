@@ -14,7 +14,13 @@ from vcr_odom.cli.options import (
     sequence_options,
     vcr_options,
 )
-from vcr_odom.cli.progress import EXIT_CODES_HELP, console, exit_interrupted, frame_progress
+from vcr_odom.cli.progress import (
+    EXIT_CODES_HELP,
+    console,
+    exit_interrupted,
+    frame_progress,
+    interrupt_label,
+)
 from vcr_odom.cli.tables import report_table
 from vcr_odom.data.selection import FrameSelection
 from vcr_odom.errors import ConfigError
@@ -97,15 +103,15 @@ def given(ctx: click.Context, name: str) -> bool:
 def run(ctx: click.Context, selection: FrameSelection, **options: object) -> None:
     """Estimate the trajectory of a sequence and write it (KITTI + TUM), metrics and a plot.
 
-    The result folder's result.json says whether it is complete or partial (Ctrl-C, an error part-way,
-    or a run killed after a checkpoint); the trajectory files always agree with it.
+    The result folder's result.json says whether it is complete or partial (Ctrl-C, SIGTERM or SIGHUP,
+    an error part-way, or a run killed after a checkpoint); the trajectory files always agree with it.
     """
     settings = RunSettings(selection=selection, **options)
     reject_unused_options(ctx, [settings.method if settings.polish is None else settings.spec])
     outcome = run_sequence(settings, progress=frame_progress)
     result, report = outcome.run, outcome.report
     if outcome.folder is None:
-        exit_interrupted("Interrupted before the first frame; no result folder kept.")
+        exit_interrupted(f"Interrupted ({interrupt_label()}) before the first frame; no result folder kept.")
     if outcome.voxel_map is not None:
         console.print(
             f"map of {len(outcome.voxel_map)} points ({settings.map_voxel:g} m voxels) written to {settings.save_map}"
@@ -120,12 +126,20 @@ def run(ctx: click.Context, selection: FrameSelection, **options: object) -> Non
         title = f"{settings.spec} on {outcome.sequence.name} (stride {selection.stride})"
         console.print(report_table(report, title=title))
     else:
-        console.print("No ground truth for this sequence: trajectory written without scores.")
+        console.print(why_unscored(outcome.sequence.gt_poses is not None, len(result.frame_indices)))
     console.print(
         f"{len(result.frame_indices)} frames at {result.frames_per_second:.1f} fps; results in {outcome.folder}"
     )
     if result.interrupted:
         exit_interrupted(
-            f"Interrupted after {len(result.frame_indices)} frames; the partial result is kept in "
-            f"{outcome.folder} (result.json: partial)."
+            f"Interrupted ({interrupt_label()}) after {len(result.frame_indices)} frames; the partial "
+            f"result is kept in {outcome.folder} (result.json: partial)."
         )
+
+
+def why_unscored(has_ground_truth: bool, frames: int) -> str:
+    """Why a trajectory has no scores: no ground truth, or too few frames to score (a run interrupted
+    after its first frame), which must not read as the other."""
+    if not has_ground_truth:
+        return "No ground truth for this sequence: trajectory written without scores."
+    return f"Not scored: {frames} frame(s) is too short to score against the ground truth (2 or more needed)."
