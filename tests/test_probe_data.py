@@ -99,7 +99,7 @@ def test_a_bin_of_another_layout_is_refused_naming_the_file_and_the_layout(
 
 def test_a_later_scan_of_another_layout_is_refused_when_read(tmp_path, scan):
     folder = scan_folder(tmp_path / "scans", [scan, with_ring(scan), scan])
-    sequence = quiet(FolderSequence, folder)  # only the first scan is read when opening
+    sequence = quiet(FolderSequence, folder)  # the first and last scans are read when opening
     np.testing.assert_array_equal(sequence.frame(0), scan)
     with pytest.raises(DataError, match=r"000001\.bin: not 4 float32 values.*--bin-columns 5"):
         sequence.frame(1)
