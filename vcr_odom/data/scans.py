@@ -102,11 +102,11 @@ def list_scan_entries(folder: Path, suffixes: tuple[str, ...]) -> list[Path]:
 
 
 def describe_other_entries(folder: Path, suffixes: tuple[str, ...]) -> str:
-    """``; not counted as scans there: a.txt, ._0.bin`` (what is not a frame), for count mismatches."""
-    others = sorted(
-        (p.name for p in folder.iterdir() if p.suffix.lower() not in suffixes or is_hidden(p)),
-        key=natural_sort_key,
-    )
+    """``; not counted as scans there: a.txt, ._0.bin`` (what is not a frame, the times and calibration
+    files that live beside scans aside), for count mismatches."""
+    companions = {TIMES_FILE, "calib.txt"}
+    names = (p.name for p in folder.iterdir() if p.suffix.lower() not in suffixes or is_hidden(p))
+    others = sorted((name for name in names if name not in companions), key=natural_sort_key)
     if not others:
         return ""
     shown = ", ".join(others[:5]) + (f" and {len(others) - 5} more" if len(others) > 5 else "")
