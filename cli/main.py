@@ -40,9 +40,11 @@ def stopping_signal() -> int | None:
 def stop_on_signals() -> None:
     """Ctrl-C, SIGTERM and SIGHUP raise :class:`~vcr_odom.errors.Interrupted` (a KeyboardInterrupt,
     so what was done is kept as for Ctrl-C); those that come after it are held: the command is already
-    stopping, and a second interrupt must not cut short the writing of what was done."""
+    stopping, and a second interrupt must not cut short the writing of what was done. A signal ignored
+    already stays ignored: ``nohup`` ignores SIGHUP, a shell ignores Ctrl-C for a job started with ``&``."""
     for signum in STOP_SIGNALS:
-        signal.signal(signum, _stop)
+        if signal.getsignal(signum) is not signal.SIG_IGN:
+            signal.signal(signum, _stop)
 
 
 def _stop(signum: int, _frame: FrameType | None) -> None:

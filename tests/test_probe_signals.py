@@ -67,7 +67,8 @@ def data_root(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return root
 
 
-def start(code: str, *args: str | Path) -> subprocess.Popen[str]:
+def start(code: str, *args: str | Path, ignore: int | None = None) -> subprocess.Popen[str]:
+    """``python -c code args``; ``ignore``: a signal it starts with ignored, as ``nohup`` does SIGHUP."""
     env = {**os.environ, "OMP_NUM_THREADS": "1", "COLUMNS": "200"}
     return subprocess.Popen(
         [sys.executable, "-c", code, *map(str, args)],
@@ -75,6 +76,7 @@ def start(code: str, *args: str | Path) -> subprocess.Popen[str]:
         stderr=subprocess.PIPE,
         text=True,
         env=env,
+        preexec_fn=None if ignore is None else lambda: signal.signal(ignore, signal.SIG_IGN),
     )
 
 
@@ -149,6 +151,16 @@ def test_sigterm_and_sighup_keep_the_partial_result_and_exit_128_plus_the_signal
     assert "No ground truth" not in out and "too short to score" in out
     metrics = json.loads((folder / "metrics.json").read_text())
     assert metrics["ground_truth"] == "available" and "too short to score" in metrics["not_scored"]
+
+
+def test_a_run_under_nohup_goes_on_through_sighup(data_root: Path, tmp_path: Path) -> None:
+    process = start(WRAPPER, *run_args(data_root, tmp_path), "--frames", "0:3", ignore=signal.SIGHUP)
+    wait_for(process, lambda: frames_done(tmp_path) >= 1)
+    process.send_signal(signal.SIGHUP)
+    _, err = process.communicate(timeout=60)
+    assert process.returncode == 0, err
+    marker = agreeing_marker(the_folder(tmp_path))
+    assert marker["status"] == "complete" and marker["frames_done"] == 3
 
 
 # -- 2: an interrupt while the commands load ---------------------------------------------------------
