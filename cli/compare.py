@@ -20,6 +20,7 @@ from vcr_odom.errors import ConfigError
 from vcr_odom.evaluation.compare import DEFAULT_BASELINES, CompareSettings, Comparison, run_comparison
 from vcr_odom.evaluation.pairs import PAIR_KINDS
 from vcr_odom.loops.spec import parse_row_spec
+from vcr_odom.model.weights import MAX_NETWORK_POINTS
 
 
 def _check_specs(ctx: click.Context, param: click.Parameter, specs: tuple[str, ...]) -> tuple[str, ...]:
@@ -70,7 +71,7 @@ def reject_bad_combinations(ctx: click.Context, protocol: str, specs: tuple[str,
 )
 @click.option(
     "--pair-points",
-    type=click.IntRange(min=64),
+    type=click.IntRange(min=64, max=MAX_NETWORK_POINTS),
     default=None,
     help="Points per cloud in the pairs protocol. Default: --vcr-points, else the VCR weights' N when "
     "a VCR row is compared, else 1024 (the paper's).",

@@ -194,6 +194,7 @@ def describe_methods() -> str:
 def vcr_options(function: F) -> F:
     """``--weights``, ``--device``, ``--vcr-passes`` and ``--vcr-points`` for the learned method (refused
     for the others), and ``--consult`` for any polished global method."""
+    from vcr_odom.model.weights import MAX_NETWORK_POINTS
     from vcr_odom.odometry.chain import CONSULT_CHOICES
     from vcr_odom.odometry.factory import DEFAULT_CONSULT
 
@@ -216,7 +217,7 @@ def vcr_options(function: F) -> F:
     )(function)
     function = click.option(
         "--vcr-points",
-        type=click.IntRange(min=4),
+        type=click.IntRange(min=4, max=MAX_NETWORK_POINTS),
         default=None,
         help="Points VCR-Net is fed per scan. Default: the weights' own (1024 for the shipped file, "
         "trained on 512): 512 takes about a third of the network's time and misses more motions ~10 m long.",

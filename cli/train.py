@@ -18,6 +18,7 @@ from vcr_odom.cli.config_options import config_options
 from vcr_odom.cli.progress import console
 from vcr_odom.errors import ConfigError
 from vcr_odom.model.config import PRESETS, VcrConfig
+from vcr_odom.model.weights import MAX_NETWORK_POINTS
 from vcr_odom.settings import Settings
 from vcr_odom.training import (
     FrameSource,
@@ -61,7 +62,7 @@ def _source_options(function: F) -> F:
     )(function)
     function = click.option(
         "--num-points",
-        type=click.IntRange(min=4),
+        type=click.IntRange(min=4, max=MAX_NETWORK_POINTS),
         default=None,
         help="Points per cloud (default: the preset's, 512 for default). The shipped file was trained on "
         "512 and runs on 1024; cache and train with the same value.",

@@ -325,3 +325,150 @@ def test_plot_text_is_printable_for_any_path(tmp_path: Path) -> None:
     poses[:, 0, 3] = [0.0, 1.0, 2.0]
     path = plot_trajectories(tmp_path / "t.png", {"icp \udcfe": poses}, poses, title="scans\udcff")
     assert path.stat().st_size > 0
+
+
+# -- 5. options that allocate are bounded --------------------------------------------------------------
+
+
+def test_vcr_points_beyond_the_bound_is_a_usage_error_before_any_work(
+    small_synthetic_root: Path, tmp_path: Path
+) -> None:
+    from vcr_odom.model.weights import MAX_NETWORK_POINTS
+
+    results = tmp_path / "results"
+    result = invoke(
+        "run", "--data-root", small_synthetic_root, "--vcr-points", 200_000, "--results-dir", results
+    )
+    assert_fails(result, 2, "--vcr-points", "200000", str(MAX_NETWORK_POINTS))
+    assert not results.exists()
+
+
+@pytest.mark.parametrize(
+    ("args", "option"),
+    [
+        (["compare", "--protocol", "pairs", "--pair-points", "200000"], "--pair-points"),
+        (["train", "--num-points", "200000"], "--num-points"),
+        (["cache", "--num-points", "200000", "--out", "c.npz"], "--num-points"),
+        (["train", "--batch-size", "100000"], "--batch-size"),
+        (["cache", "--copies", "100000", "--out", "c.npz"], "--copies"),
+        (["synth", "--frames", "1000000000", "--out", "synth"], "--frames"),
+    ],
+)
+def test_every_option_that_allocates_is_bounded(args: list[str], option: str, tmp_path: Path) -> None:
+    result = CliRunner().invoke(cli, args, catch_exceptions=False)
+    assert_fails(result, 2, option, "<=")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_the_registrar_refuses_a_point_count_beyond_the_bound_before_allocating() -> None:
+    from vcr_odom.errors import ConfigError
+    from vcr_odom.model.weights import MAX_NETWORK_POINTS
+    from vcr_odom.registration.vcr import VcrRegistrar
+
+    with pytest.raises(ConfigError, match=rf"--vcr-points.*to {MAX_NETWORK_POINTS}.*got 200000"):
+        VcrRegistrar(device="cpu", num_points=200_000)
+    registrar = VcrRegistrar(device="cpu")
+    with pytest.raises(ConfigError, match="--vcr-points"):
+        registrar.use_inference_settings(num_points=MAX_NETWORK_POINTS + 1)
+    assert registrar.config.num_points != MAX_NETWORK_POINTS + 1
+
+
+def test_library_settings_that_allocate_are_bounded() -> None:
+    from vcr_odom.errors import ConfigError
+    from vcr_odom.synth import SynthConfig
+    from vcr_odom.training import FrameSource, TrainConfig
+
+    for make, field in (
+        (lambda: SynthConfig(frames=10**9), "frames"),
+        (lambda: TrainConfig(batch_size=10**6), "batch_size"),
+        (lambda: FrameSource(copies=10**6), "copies"),
+    ):
+        with pytest.raises(ConfigError, match=field):
+            make()
+
+
+# -- 6. weights no training produces are refused where the file is read -------------------------------
+
+
+def _shipped_scaled(tmp_path: Path, name: str, change: Any) -> Path:
+    """The shipped weights with every floating tensor passed through ``change``."""
+    import torch
+
+    from vcr_odom.model.network import VCRNet
+    from vcr_odom.model.weights import default_weights_path, load_weights, save_weights
+
+    model, config, _ = load_weights(default_weights_path())
+    state = {k: change(k, v) if v.is_floating_point() else v for k, v in model.state_dict().items()}
+    changed = VCRNet(config)
+    changed.load_state_dict(state)
+    with torch.no_grad():
+        return save_weights(tmp_path / name, changed, config)
+
+
+def test_shipped_weights_still_load() -> None:
+    from vcr_odom.model.weights import WEIGHTS_DIR, load_weights
+
+    shipped = sorted(WEIGHTS_DIR.rglob("*.safetensors"))
+    assert shipped
+    for path in shipped:
+        model, _, _ = load_weights(path)
+        assert model is not None
+
+
+@pytest.mark.parametrize(
+    ("name", "change", "expected"),
+    [
+        ("zero.safetensors", lambda _k, v: v * 0, "every weight matrix is zero"),
+        ("huge.safetensors", lambda _k, v: v * 1e30, "corrupt or scaled"),
+        ("large.safetensors", lambda _k, v: v * 1e3, "pose solve fails"),
+        (
+            "blank.safetensors",
+            lambda k, v: v if k == "log_temperature" or v.ndim < 2 else v * 0 + 1e-3,
+            "coincide",
+        ),
+    ],
+)
+def test_weights_no_training_produces_are_refused_at_load(
+    tmp_path: Path, name: str, change: Any, expected: str
+) -> None:
+    from vcr_odom.model.weights import load_weights
+
+    path = _shipped_scaled(tmp_path, name, change)
+    with pytest.raises(DataError, match=expected) as caught:
+        load_weights(path)
+    assert str(path) in str(caught.value)
+
+
+def test_run_with_zero_weights_fails_in_one_line_before_any_folder(
+    small_synthetic_root: Path, tmp_path: Path
+) -> None:
+    path = _shipped_scaled(tmp_path, "zero.safetensors", lambda _k, v: v * 0)
+    results = tmp_path / "results"
+    result = invoke(
+        "run", "--data-root", small_synthetic_root, "--weights", path, "--device", "cpu",
+        "--results-dir", results,
+    )  # fmt: skip
+    assert_fails(result, 1, path, "zero")
+    assert not results.exists()
+
+
+@pytest.mark.filterwarnings("ignore:no plausible ground plane")
+def test_a_pose_solve_that_fails_names_the_weights(
+    small_synthetic_root: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Weights that pass every load-time check but still break the SVD: DataError naming the file."""
+    import torch
+
+    from vcr_odom.model.network import VCRNet
+    from vcr_odom.registration.vcr import VcrRegistrar
+
+    registrar = VcrRegistrar(device="cpu")
+
+    def broken(*_args: Any, **_kwargs: Any) -> None:
+        raise torch.linalg.LinAlgError("linalg.svd: The algorithm failed to converge")
+
+    monkeypatch.setattr(VCRNet, "register_features", broken)
+    scan = np.random.default_rng(0).uniform(-20, 20, (4000, 4)).astype(np.float32)
+    with pytest.raises(DataError, match="pose solve failed") as caught:
+        registrar.register(registrar.prepare(scan), registrar.prepare(scan))
+    assert str(registrar.weights_path) in str(caught.value)

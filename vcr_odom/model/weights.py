@@ -45,6 +45,17 @@ CONFIG_LIMITS: dict[str, int] = {
 Why: the sizes come from a file, and a corrupt or hostile header (``num_points: 1e8``) would
 otherwise have the network try to allocate tens of gigabytes (the attention is N x N) before anything
 says the file is wrong. Each bound is 16x or more the ``paper`` preset's value."""
+MAX_NETWORK_POINTS = 8192
+"""Most points per cloud the network may be fed (``--vcr-points``, ``--pair-points``, ``--num-points``).
+
+Why: the network's memory grows with N squared (kNN graphs and self-attention are N x N, per head):
+measured on a CPU, one pair at N = 4096 takes about 0.4 GB over the model's own and 10 s, so 8192
+takes about 1.5 GB, while ``--vcr-points 200000`` asked for 62 GB. 8192 is 8x the shipped file's
+1024 and 16x the N it was trained on."""
+MAX_WEIGHT_MAGNITUDE = 1e4
+"""Largest absolute value a weight file may hold. Trained VCR-Net values stay within about 5 (the
+shipped files' largest is the log temperature, 5.4; weight decay keeps the rest near 1), so a value
+beyond this is a corrupt or scaled file: x1e30 weights ended a run in a LinAlgError at frame 1."""
 WEIGHTS_DIR = Path(str(resources.files("vcr_odom.weights")))
 """The shipped weights: the repository's ``weights/`` folder, installed as the package ``vcr_odom.weights``."""
 
@@ -105,6 +116,7 @@ def read_weights(path: str | os.PathLike[str]) -> tuple[dict[str, torch.Tensor],
         raise DataError(f"{path}: the stored model configuration is invalid: {error}") from error
     check_config_limits(path, config)
     check_finite(path, tensors)
+    check_plausible(path, tensors)
     return tensors, config, metadata
 
 
@@ -136,6 +148,55 @@ def check_finite(path: Path, tensors: dict[str, torch.Tensor]) -> None:
         raise DataError(f"{path}: weights hold NaN or inf values (in {shown}); the file is corrupt")
 
 
+def check_plausible(path: Path, tensors: dict[str, torch.Tensor]) -> None:
+    """DataError for weights no training produces: every weight matrix zero (a wiped or blank file,
+    which runs and returns the identity for every pair: a frozen trajectory with only a warning), or
+    a value beyond :data:`MAX_WEIGHT_MAGNITUDE` (a scaled file, whose pose solve fails)."""
+    floats = {name: t for name, t in sorted(tensors.items()) if t.is_floating_point() and t.numel()}
+    matrices = [t for t in floats.values() if t.ndim >= 2]
+    if matrices and not any(bool(t.any()) for t in matrices):
+        raise DataError(
+            f"{path}: every weight matrix is zero (a blank or wiped file); expected trained VCR-Net weights"
+        )
+    largest, name = max(((float(t.abs().max()), name) for name, t in floats.items()), default=(0.0, ""))
+    if largest > MAX_WEIGHT_MAGNITUDE:
+        raise DataError(
+            f"{path}: weights hold {largest:.3g} (in {name}); trained VCR-Net weights stay within "
+            f"+-{MAX_WEIGHT_MAGNITUDE:g}, so the file is corrupt or scaled"
+        )
+
+
+def check_forward(path: Path, model: VCRNet) -> None:
+    """DataError unless ``model`` registers a fixed small synthetic pair to finite, non-degenerate
+    output: what :func:`check_plausible` cannot see (weights that are each plausible but together
+    give NaN, or virtual points that all coincide) is found where the file is read, not at frame 1.
+    Runs on the CPU with the global random state untouched."""
+    config = model.config
+    count = max(64, 2 * (config.k + 1), config.top_j + 1)
+    generator = torch.Generator().manual_seed(0)
+    source = torch.rand(1, count, 3, generator=generator) * torch.tensor([30.0, 30.0, 3.0]) - 15.0
+    angle = torch.tensor(0.1)
+    rotation = torch.tensor(
+        [[angle.cos(), -angle.sin(), 0.0], [angle.sin(), angle.cos(), 0.0], [0.0, 0.0, 1.0]]
+    )
+    target = source @ rotation.T + torch.tensor([1.0, 0.5, 0.0])
+    try:
+        with torch.random.fork_rng(devices=[]), torch.inference_mode():
+            output = model.eval()(source, target)
+    except torch.linalg.LinAlgError as error:
+        raise DataError(
+            f"{path}: the network's pose solve fails on a test pair ({error}); the weights are corrupt"
+        ) from None
+    virtual = output.virtual_points.double()
+    finite = bool(torch.isfinite(output.transform).all() and torch.isfinite(virtual).all())
+    spread = float((virtual - virtual.mean(dim=1, keepdim=True)).abs().max()) if finite else 0.0
+    if not finite or spread < 1e-6:
+        what = "non-finite poses" if not finite else "virtual points that all coincide"
+        raise DataError(
+            f"{path}: the network gives {what} on a test pair; the weights are corrupt or untrained"
+        )
+
+
 def load_weights(
     path: str | os.PathLike[str],
     config: VcrConfig | None = None,
@@ -161,6 +222,7 @@ def load_weights(
     model = VCRNet(stored)
     check_state_dict(path, model.state_dict(), tensors)
     model.load_state_dict(tensors)
+    check_forward(path, model)
     return model.to(device).eval(), stored, metadata
 
 

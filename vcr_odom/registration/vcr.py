@@ -17,10 +17,10 @@ from numpy.typing import NDArray
 
 from vcr_odom.data.base import Points
 from vcr_odom.device import resolve_device
-from vcr_odom.errors import ConfigError
+from vcr_odom.errors import ConfigError, DataError
 from vcr_odom.geometry import Transform, project_to_se3
 from vcr_odom.model.config import INFERENCE_FIELDS, VcrConfig
-from vcr_odom.model.weights import default_weights_path, load_weights
+from vcr_odom.model.weights import MAX_NETWORK_POINTS, default_weights_path, load_weights
 from vcr_odom.preprocess import network_preprocess_config, preprocess
 from vcr_odom.registration.base import DEGENERATE, TOO_FEW_POINTS, RegistrationResult
 
@@ -80,21 +80,16 @@ class VcrRegistrar:
             raise ConfigError(f"batch_size must be >= 1; got {batch_size!r}")
         if passes is not None and int(passes) < 1:
             raise ConfigError(f"passes must be >= 1; got {passes!r}")
+        self.weights_path = path
         self.model, self.config, self.metadata = load_weights(path, device=str(self.device))
         self.passes = default_passes(self.config) if passes is None else int(passes)
         self.model.eval()
-        self.weights_path = path
         self.seed = seed
         # Pre-processing as in training: ground removed, exactly N points by farthest point sampling
         # within the weights' input range.
         self.preprocess_config = network_preprocess_config(self.config, seed)
         if num_points is not None and num_points != self.config.num_points:
-            if int(num_points) <= self.config.k:
-                raise ConfigError(
-                    f"num_points (--vcr-points) must exceed the network's k = {self.config.k} "
-                    f"neighbours of {path}; got {num_points}"
-                )
-            self.use_inference_settings(num_points=int(num_points))
+            self.use_inference_settings(num_points=num_points)
 
     def use_inference_settings(self, **changes: Any) -> None:
         """Run the same tensors with other :data:`INFERENCE_FIELDS` (point count, crop, pose head): a
@@ -103,6 +98,10 @@ class VcrRegistrar:
         if unknown:
             raise ConfigError(
                 f"not inference settings: {', '.join(unknown)}; valid: {', '.join(INFERENCE_FIELDS)}"
+            )
+        if "num_points" in changes:
+            changes["num_points"] = check_network_points(
+                changes["num_points"], self.config.k, self.weights_path
             )
         self.config = self.config.with_changes(**changes)
         self.model.config = self.config
@@ -161,7 +160,19 @@ class VcrRegistrar:
     def register_batch(self, pairs: Sequence[tuple[VcrFrame, VcrFrame]]) -> list[RegistrationResult]:
         """``T_target_source`` of every ``(source, target)`` pair, in one batched pass per ``passes``:
         each pass after the first re-encodes the source moved by the estimate so far and registers
-        what is left (see :data:`DEFAULT_PASSES`)."""
+        what is left (see :data:`DEFAULT_PASSES`). A pose solve that fails (an SVD of non-finite
+        correspondences: weights the load-time checks did not catch) is a DataError naming the
+        weights, not a LinAlgError traceback."""
+        try:
+            return self._register_batch(pairs)
+        except (torch.linalg.LinAlgError, np.linalg.LinAlgError) as error:
+            reason = (str(error).splitlines() or [type(error).__name__])[0]
+            raise DataError(
+                f"{self.weights_path}: the network's pose solve failed ({reason}); "
+                "these weights give non-finite correspondences: use the shipped weights or retrain"
+            ) from error
+
+    def _register_batch(self, pairs: Sequence[tuple[VcrFrame, VcrFrame]]) -> list[RegistrationResult]:
         groups = _same_size(pairs, key=lambda pair: (pair[0].points.shape[1], pair[1].points.shape[1]))
         if len(groups) > 1:  # a sparse frame among them: each point count is batched on its own
             results: list[RegistrationResult | None] = [None] * len(pairs)
@@ -208,6 +219,20 @@ class VcrRegistrar:
                 info |= {"status": TOO_FEW_POINTS, "distinct_points": min(sparse)}
             results.append(RegistrationResult(transform.copy(), info=info))
         return results
+
+
+def check_network_points(num_points: object, k: int, weights: Path) -> int:
+    """``num_points`` (``--vcr-points``) as an int within what the network can take: more than its
+    k neighbours (a kNN graph needs k + 1 points) and at most :data:`MAX_NETWORK_POINTS` (its
+    memory grows with N squared: 200000 asked for 62 GB); else a ConfigError naming the option."""
+    valid = isinstance(num_points, int | np.integer) and not isinstance(num_points, bool)
+    if not valid or not k < int(num_points) <= MAX_NETWORK_POINTS:  # type: ignore[call-overload]
+        raise ConfigError(
+            f"--vcr-points (num_points) must be a whole number from {k + 1} (more than the network's "
+            f"k = {k} neighbours of {weights}) to {MAX_NETWORK_POINTS} (its memory grows with the "
+            f"square); got {num_points!r}"
+        )
+    return int(num_points)  # type: ignore[call-overload]
 
 
 def default_passes(config: VcrConfig) -> int:

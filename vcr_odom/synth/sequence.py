@@ -52,7 +52,9 @@ class SynthConfig(Settings):
     some of them make the sequence.
     """
 
-    frames: int = Field(default=200, ge=2, description="Number of frames.")
+    frames: int = Field(
+        default=200, ge=2, le=100_000, description="Number of frames (at most 100000: 2.8 h at 10 Hz)."
+    )
     seed: int = Field(
         default=0,
         ge=0,

@@ -37,7 +37,7 @@ class FrameSource(Settings):
 
     data_root: Path | None = Field(None, description="KITTI-layout root (real or from `vcr-odom synth`).")
     seqs: tuple[str, ...] = Field((), description="Sequence id under --data-root; repeat for several.")
-    copies: int = Field(2, ge=2, description="Independent down-samplings stored per frame.")
+    copies: int = Field(2, ge=2, le=64, description="Independent down-samplings stored per frame.")
     frames: str | None = Field(
         None, description="Only frames A:B of each --seq (B exclusive), e.g. to keep a test block out."
     )

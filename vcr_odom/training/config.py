@@ -21,7 +21,13 @@ class TrainConfig(Settings):
     """
 
     epochs: int = Field(30, ge=1, strict=True, description="Epochs of the cosine learning-rate schedule.")
-    batch_size: int = Field(8, ge=1, strict=True, description="Pairs per optimiser step (per process).")
+    batch_size: int = Field(
+        8,
+        ge=1,
+        le=512,
+        strict=True,
+        description="Pairs per optimiser step (per process; memory grows with it).",
+    )
     lr: float = Field(1e-3, gt=0, allow_inf_nan=False, description="Initial Adam learning rate.")
     weight_decay: float = Field(
         1e-4, ge=0, allow_inf_nan=False, description="Weight decay of weight matrices (not of biases)."
