@@ -197,6 +197,7 @@ class SynthSequence:
         extras += ["handheld"] if config.motion == "handheld" else []
         extras += [config.route] if config.route != "street" else []
         self.name = "-".join([f"synth-seed{config.seed}", *extras])
+        self.label = self.name
         self._simulators: dict[int, LidarSimulator] = {}
 
     @classmethod
