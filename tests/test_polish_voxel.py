@@ -13,9 +13,11 @@ from vcr_odom.data import open_sequence
 from vcr_odom.odometry.polish import KissIcpPolish, polish_kiss_config
 from vcr_odom.odometry.polish_voxel import (
     SPACING_FACTOR,
+    SPARSE_SOURCE_POINTS,
     TARGET_SOURCE_POINTS,
     VOXEL_STEP,
     density_voxel,
+    ring_structured,
     source_points,
 )
 
@@ -78,3 +80,22 @@ def test_the_polish_fixes_its_voxel_on_the_first_frame(adapt: bool) -> None:
     dense = _walls(0.05, rng)  # a later, denser frame does not move the grid the map is built on
     polish.prepare(dense)
     assert polish.voxel_size == pytest.approx(expected)
+
+
+def _rings(beams: int, rng: np.random.Generator) -> np.ndarray:
+    """A sparse spinning scan of a 15 m round room: ``beams`` rings of 1,800 points each."""
+    elevation = np.radians(np.linspace(-15.0, 15.0, beams))
+    azimuth = np.radians(np.arange(0.0, 360.0, 0.2))
+    e, a = np.meshgrid(elevation, azimuth, indexing="ij")
+    directions = np.stack([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)], axis=-1).reshape(-1, 3)
+    horizontal = np.hypot(directions[:, 0], directions[:, 1])
+    return directions * (15.0 + rng.normal(scale=0.01, size=len(directions)))[:, None] / horizontal[:, None]
+
+
+def test_a_sparse_spinning_scan_keeps_kiss_icps_voxel() -> None:
+    rings = _rings(16, np.random.default_rng(3))
+    config = polish_kiss_config()
+    assert source_points(rings, config.mapping.voxel_size) < SPARSE_SOURCE_POINTS  # sparse, yet rings
+    assert ring_structured(rings)
+    assert not ring_structured(_walls(0.25, np.random.default_rng(4)))
+    assert density_voxel(rings, config) == config.mapping.voxel_size

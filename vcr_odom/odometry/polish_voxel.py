@@ -1,11 +1,11 @@
 """The kiss-icp polish's voxel size, from the first frame's density.
 
 kiss-icp derives its voxel from the maximum range (``max_range / 100``: 1 m at 100 m), a rule made for
-spinning scans, where a 1 m grid still leaves its registration about 2,000 points. A solid-state scan,
-a 16-beam scan or a keyframe cloud voxel-thinned by a SLAM system leaves it 500-1,300, and the polish
-then registers few, coarse points: on such drives a finer grid halves the polish's per-pair error
-(docs/benchmarks.md, "The polish on sparse scans"). The voxel is chosen once, on the first frame,
-because kiss-icp's local map needs one grid for the whole run.
+spinning scans, where a 1 m grid still leaves its registration about 2,000 points. A solid-state scan
+or a keyframe cloud voxel-thinned by a SLAM system leaves it 500-1,300, and the polish then registers
+few, coarse points: there a finer grid cuts the polish's error (docs/benchmarks.md, "The polish
+voxel"). A sparse spinning scan (16 beams) keeps kiss-icp's voxel (:func:`ring_structured`). The voxel
+is chosen once, on the first frame, because kiss-icp's local map needs one grid for the whole run.
 """
 
 from __future__ import annotations
@@ -46,6 +46,20 @@ def source_points(frame: np.ndarray, voxel_size: float) -> int:
     return len(source)
 
 
+RING_SHARE = 0.8
+"""A frame whose points fall this much or more into 128 elevation rows of 0.1 deg is a spinning scan's
+rings (synthetic 16- to 128-beam scans: 0.997-1.0; rosettes and thinned keyframes: 0.28-0.63)."""
+
+
+def ring_structured(points: np.ndarray) -> bool:
+    """Whether the frame is a spinning sensor's rings: sparse between rings, dense along them. A finer
+    grid there fits the rings rather than the scene: on 16-beam drives it cut the per-pair error and
+    doubled the drift (docs/benchmarks.md, "The polish voxel"), so such scans keep kiss-icp's voxel."""
+    elevation = np.degrees(np.arctan2(points[:, 2], np.hypot(points[:, 0], points[:, 1])))
+    rows = np.bincount(np.floor((elevation + 90.0) / 0.1).astype(np.int64))
+    return float(np.sort(rows)[::-1][:128].sum()) >= RING_SHARE * len(points)
+
+
 def median_spacing(points: np.ndarray) -> float:
     """Median distance from a point to its nearest neighbour."""
     if len(points) < 2:
@@ -55,12 +69,15 @@ def median_spacing(points: np.ndarray) -> float:
 
 
 def density_voxel(frame: np.ndarray, config: KISSConfig) -> float:
-    """kiss-icp's own voxel for a frame dense enough for it; for a sparse one the largest voxel on the
+    """kiss-icp's own voxel for a frame dense enough for it or a spinning scan's rings; for another
+    sparse one (solid-state, thinned keyframes) the largest voxel on the
     ladder (``VOXEL_STEP``) that leaves :data:`TARGET_SOURCE_POINTS`, no finer than the floors
     (:data:`MIN_VOXEL_FRACTION`, :data:`SPACING_FACTOR`)."""
     voxel = float(config.mapping.voxel_size)
     cropped = get_preprocessor(config).preprocess(frame, np.array([]), np.eye(4))
     if len(cropped) == 0 or source_points(cropped, voxel) >= SPARSE_SOURCE_POINTS:
+        return voxel
+    if ring_structured(cropped):
         return voxel
     floor = max(voxel * MIN_VOXEL_FRACTION, SPACING_FACTOR * median_spacing(cropped))
     while voxel * VOXEL_STEP >= floor:
