@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # The "robust by default" table of docs/benchmarks.md: the default (vcr+kiss-icp, network on doubt)
-# against the network on every frame, the fit-only doubt rule it replaced, and kiss-icp, on the
+# against the network on every frame, the same with kiss-icp's own polish voxel, and kiss-icp, on the
 # KITTI sample (strides 1, 5, 10, and its unseen block 40-59) and on unseen synthetic drives of every
-# sensor model (seeds 701-710: nothing was tuned on them; the doubt rule was tuned on seeds 601-616).
+# sensor model (seeds 701-715: nothing was tuned on them; the doubt rule was tuned on seeds 601-616, the
+# polish voxel on 631-646).
 #
 #   bash benchmarks/robust_default.sh [WORK_DIR] [KITTI_SAMPLE_ROOT] > table.md
 #
@@ -29,6 +30,11 @@ DRIVES=(
   "708 200|--sensor mid360 --scene suburban --motion handheld"
   "709 300|--sensor os128 --scene oldtown --motion handheld --keyframes 1.0 --thin 0.7"
   "710 300|--sensor avia --scene suburban --motion handheld --keyframes 1.0 --thin 0.2"
+  "711 100|--sensor vlp16 --scene suburban --speed 10"
+  "712 100|--sensor avia --scene oldtown --speed 8"
+  "713 200|--sensor avia --scene avenue --motion handheld"
+  "714 300|--sensor avia --scene oldtown --motion handheld --keyframes 1.0 --thin 0.2"
+  "715 300|--sensor mid360 --scene avenue --motion handheld --keyframes 1.0 --thin 0.3"
 )
 SYNTH=()
 for spec in "${DRIVES[@]}"; do
