@@ -15,6 +15,7 @@ import click
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from vcr_odom.cli.config_options import config_options
+from vcr_odom.cli.options import _from_environment
 from vcr_odom.cli.progress import console
 from vcr_odom.errors import ConfigError
 from vcr_odom.model.config import PRESETS, VcrConfig
@@ -91,9 +92,14 @@ def _training_options(function: F) -> F:
 
 
 def _settings(kind: type[S], options: dict[str, Any], names: tuple[str, ...]) -> S:
-    """``kind`` from the options of its fields; a bad combination is a usage error, like a bad option."""
+    """``kind`` from the options of its fields; a bad combination is a usage error, like a bad option.
+    A data root from ``$VCR_ODOM_DATA_ROOT`` is passed as none: the library reads the variable itself and
+    names it, not ``--data-root``, when the root is bad."""
+    values = {name: options[name] for name in names if name in options}
+    if "data_root" in values and _from_environment("data_root"):
+        values["data_root"] = None
     try:
-        return kind(**{name: options[name] for name in names if name in options})
+        return kind(**values)
     except ConfigError as error:
         raise click.UsageError(str(error)) from error
 

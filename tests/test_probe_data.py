@@ -257,6 +257,16 @@ def test_a_bad_data_root_from_the_environment_names_the_variable(tmp_path):
     assert DATA_ROOT_ENV not in result.output
 
 
+def test_a_bad_data_root_from_the_environment_names_the_variable_to_cache(tmp_path):
+    out, missing = tmp_path / "s00.npz", tmp_path / "no-such-root"
+    result = invoke("cache", "--seq", "00", "--out", out, env={DATA_ROOT_ENV: str(missing)})
+    assert_refused(result, EXIT_USAGE, f"${DATA_ROOT_ENV}", missing)
+    assert "--data-root" not in result.output and not out.exists()
+    result = invoke("cache", "--data-root", missing, "--seq", "00", "--out", out, env={})
+    assert_refused(result, EXIT_USAGE, "--data-root", missing)
+    assert DATA_ROOT_ENV not in result.output and not out.exists()
+
+
 # -- 7. and 8. recordings ---------------------------------------------------------------------------
 
 
