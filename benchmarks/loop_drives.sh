@@ -30,13 +30,11 @@ DRIVES=(
   "810 1000|--sensor hdl64 --route street --scene suburban"
 )
 SEQUENCES=()
+# shellcheck source=benchmarks/synth_drives.sh
+. benchmarks/synth_drives.sh
 for spec in "${DRIVES[@]}"; do
-  head=${spec%%|*}
-  read -r seed frames <<<"$head"
-  # shellcheck disable=SC2086  # the options are words
-  [ -f "$WORK/synth/poses/$seed.txt" ] || "$VCR" synth --out "$WORK/synth" --seq "$seed" --frames "$frames" \
-    --seed "$seed" ${spec#*|} >&2
-  SEQUENCES+=(--sequence "$WORK/synth/sequences/$seed")
+  folder=$(make_drive "$WORK" "$VCR" "$spec")  # a failed synth stops the script (set -e)
+  SEQUENCES+=(--sequence "$folder")
 done
 "$PY" benchmarks/loop_closure.py "${SEQUENCES[@]}" "$@" --json "$WORK/loops.json" --markdown "$WORK/loops.md" >&2
 cat "$WORK/loops.md"

@@ -37,13 +37,11 @@ DRIVES=(
   "715 300|--sensor mid360 --scene avenue --motion handheld --keyframes 1.0 --thin 0.3"
 )
 SYNTH=()
+# shellcheck source=benchmarks/synth_drives.sh
+. benchmarks/synth_drives.sh
 for spec in "${DRIVES[@]}"; do
-  head=${spec%%|*}
-  read -r seed frames <<<"$head"
-  # shellcheck disable=SC2086  # the options are words
-  [ -f "$WORK/synth/poses/$seed.txt" ] || "$VCR" synth --out "$WORK/synth" --seq "$seed" --frames "$frames" \
-    --seed "$seed" ${spec#*|} >&2
-  SYNTH+=(--sequence "$WORK/synth/sequences/$seed")
+  folder=$(make_drive "$WORK" "$VCR" "$spec")  # a failed synth stops the script (set -e)
+  SYNTH+=(--sequence "$folder")
 done
 
 RULES=(--variant "kiss-icp voxel=adapt_voxel:0" --baseline kiss-icp)

@@ -37,12 +37,11 @@ DRIVES=(
   "79 400|--sensor mid360 --scene avenue --keyframes 3.0 --thin 0.3"
 )
 CACHES=()
+# shellcheck source=benchmarks/synth_drives.sh
+. benchmarks/synth_drives.sh
 for spec in "${DRIVES[@]}"; do
-  head=${spec%%|*}
-  read -r seed frames <<<"$head"
-  # shellcheck disable=SC2086  # the options are words
-  [ -f "$WORK/synth/poses/$seed.txt" ] || "$VCR" synth --out "$WORK/synth" --seq "$seed" --frames "$frames" \
-    --seed "$seed" ${spec#*|}
+  make_drive "$WORK" "$VCR" "$spec" >/dev/null
+  seed=${spec%% *}
   # Keyframe sets: every keyframe; 10 Hz drives: every fourth frame (neighbours are near-copies).
   stride=4
   case "$spec" in *--keyframes*) stride=1 ;; esac
