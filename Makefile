@@ -4,7 +4,7 @@ PYTHON ?= python3
 BIN := $(VENV)/bin
 export PYTHON VENV
 
-.PHONY: setup demo test test-all lint format bench clean
+.PHONY: setup demo test test-all lint format bench tables clean
 
 setup:
 	@bash scripts/setup.sh
@@ -25,6 +25,10 @@ lint: setup
 
 format: setup
 	$(BIN)/ruff format . && $(BIN)/ruff check --fix .
+
+## Rerun the benchmarks behind the generated tables of docs/benchmarks.md (hours on 2 cores).
+tables: setup
+	$(BIN)/python benchmarks/regenerate_tables.py --page docs/benchmarks.md --work runs/tables
 
 clean:
 	rm -rf $(VENV) .pytest_cache .ruff_cache *.egg-info
