@@ -186,6 +186,12 @@ def main() -> None:
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("--sequence", type=Path, action="append", required=True, help="sequences/<id> folder")
+    parser.add_argument(
+        "--name",
+        action="append",
+        default=[],
+        help="what each --sequence is (e.g. 'HDL-64E loop'), shown after its id; one per --sequence or none",
+    )
     parser.add_argument("--stride", type=int, default=1)
     parser.add_argument("--method", default="vcr")
     parser.add_argument(
@@ -194,9 +200,13 @@ def main() -> None:
     parser.add_argument("--json", type=Path)
     parser.add_argument("--markdown", type=Path)
     args = parser.parse_args()
+    if args.name and len(args.name) != len(args.sequence):
+        parser.error(
+            f"--name: {len(args.name)} given for {len(args.sequence)} --sequence; give one each or none"
+        )
     rows = []
     with tempfile.TemporaryDirectory() as scratch:
-        for folder in args.sequence:
+        for index, folder in enumerate(args.sequence):
             root, seq = folder.parent.parent, folder.name
             selection = FrameSelection(data_root=root, seq=seq, stride=args.stride)
             started = time.perf_counter()
@@ -207,6 +217,8 @@ def main() -> None:
             outcome = map_sequence(settings)
             map_seconds = time.perf_counter() - started
             row = score(outcome, settings, odometry_seconds, map_seconds)
+            if args.name:
+                row["sequence"] = f"{seq} {args.name[index]}"
             if args.kiss_slam:
                 row.update(kiss_slam_row(outcome))
             rows.append(row)

@@ -16,25 +16,24 @@ PY=${PYTHON:-.venv/bin/python}
 VCR=${VCR:-.venv/bin/vcr-odom}
 mkdir -p "$WORK"
 
-# seed frames | synth options
-DRIVES=(
-  "801 800|--sensor hdl64 --route loop --scene suburban"
-  "802 800|--sensor hdl32 --route return --scene suburban"
-  "803 800|--sensor vlp16 --route figure8 --scene oldtown"
-  "804 800|--sensor os128 --route loop --scene highway"
-  "805 800|--sensor avia --route return --scene suburban"
-  "806 800|--sensor mid360 --route loop --scene oldtown"
-  "807 800|--sensor avia --route figure8 --scene avenue"
-  "808 800|--sensor hdl64 --route blocks --scene suburban"
-  "809 600|--sensor vlp16 --route blocks --scene oldtown"
-  "810 1000|--sensor hdl64 --route street --scene suburban"
+DRIVES=(  # seed frames|synth options|what the table calls it
+  "801 800|--sensor hdl64 --route loop --scene suburban|HDL-64E loop"
+  "802 800|--sensor hdl32 --route return --scene suburban|HDL-32E return (180°)"
+  "803 800|--sensor vlp16 --route figure8 --scene oldtown|VLP-16 figure eight"
+  "804 800|--sensor os128 --route loop --scene highway|OS1-128 loop, highway"
+  "805 800|--sensor avia --route return --scene suburban|Avia return (180°)"
+  "806 800|--sensor mid360 --route loop --scene oldtown|Mid-360 loop"
+  "807 800|--sensor avia --route figure8 --scene avenue|Avia figure eight"
+  "808 800|--sensor hdl64 --route blocks --scene suburban|HDL-64E identical blocks"
+  "809 600|--sensor vlp16 --route blocks --scene oldtown|VLP-16 identical blocks"
+  "810 1000|--sensor hdl64 --route street --scene suburban|HDL-64E street, no revisit"
 )
 SEQUENCES=()
 # shellcheck source=benchmarks/synth_drives.sh
 . benchmarks/synth_drives.sh
 for spec in "${DRIVES[@]}"; do
-  folder=$(make_drive "$WORK" "$VCR" "$spec")  # a failed synth stops the script (set -e)
-  SEQUENCES+=(--sequence "$folder")
+  folder=$(make_drive "$WORK" "$VCR" "${spec%|*}")  # a failed synth stops the script (set -e)
+  SEQUENCES+=(--sequence "$folder" --name "${spec##*|}")
 done
 "$PY" benchmarks/loop_closure.py "${SEQUENCES[@]}" "$@" --json "$WORK/loops.json" --markdown "$WORK/loops.md" >&2
 cat "$WORK/loops.md"
