@@ -2,8 +2,9 @@
 # The "robust by default" table of docs/benchmarks.md: the default (vcr+kiss-icp, network on doubt)
 # against the network on every frame, the same with kiss-icp's own polish voxel, and kiss-icp, on the
 # KITTI sample (strides 1, 5, 10, and its unseen block 40-59) and on unseen synthetic drives of every
-# sensor model (seeds 701-718: nothing was tuned on them; the doubt rule was tuned on seeds 601-616 (its share rule after seeing 710 and 714; 716-718 are unseen by it), the
-# polish voxel on 631-646).
+# sensor model (seeds 701-718: nothing was tuned on them; the doubt rule was tuned on seeds 601-616,
+# its share rule after seeing 710 and 714, so 716-718 are the unseen keyframe sets for it; the polish
+# voxel was tuned on 631-646).
 #
 #   bash benchmarks/robust_default.sh [WORK_DIR] [KITTI_SAMPLE_ROOT] > table.md
 #
