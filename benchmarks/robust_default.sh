@@ -2,8 +2,9 @@
 # The "robust by default" table of docs/benchmarks.md: the default (vcr+kiss-icp, network on doubt)
 # against the network on every frame, the same with kiss-icp's own polish voxel, and kiss-icp, on the
 # KITTI sample (strides 1, 5, 10, and its unseen block 40-59) and on unseen synthetic drives of every
-# sensor model (seeds 701-715: nothing was tuned on them; the doubt rule was tuned on seeds 601-616, the
-# polish voxel on 631-646).
+# sensor model (seeds 701-718: nothing was tuned on them; the doubt rule was tuned on seeds 601-616,
+# its share rule after seeing 710 and 714, so 716-718 are the unseen keyframe sets for it; the polish
+# voxel was tuned on 631-646).
 #
 #   bash benchmarks/robust_default.sh [WORK_DIR] [KITTI_SAMPLE_ROOT] > table.md
 #
@@ -35,6 +36,9 @@ DRIVES=(
   "713 200|--sensor avia --scene avenue --motion handheld"
   "714 300|--sensor avia --scene oldtown --motion handheld --keyframes 1.0 --thin 0.2"
   "715 300|--sensor mid360 --scene avenue --motion handheld --keyframes 1.0 --thin 0.3"
+  "716 300|--sensor avia --scene avenue --motion handheld --keyframes 1.0 --thin 0.15"
+  "717 300|--sensor mid360 --scene oldtown --motion handheld --keyframes 1.0 --thin 0.2"
+  "718 300|--sensor os128 --scene suburban --motion handheld --keyframes 1.0 --thin 0.5"
 )
 SYNTH=()
 # shellcheck source=benchmarks/synth_drives.sh

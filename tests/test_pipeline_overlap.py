@@ -198,3 +198,27 @@ def test_a_prior_far_from_its_polished_result_is_doubted_by_default(
     assert doubting.per_frame_info[5]["global"].startswith("far from the prior")
     assert (6, 4) in oracle.calls
     assert doubting.per_frame_info[7]["global"] == "not needed"  # steps of one frame again
+
+
+def test_where_the_prior_is_mostly_in_doubt_every_pair_is_asked_until_it_holds_again(
+    synth: SynthSequence,
+) -> None:
+    """Steps of two and one frames in turn: the constant-velocity prior is a frame off on every pair,
+    so the checks doubt them all. When steps of one frame come back, the first pair the prior gets right
+    is still asked (most of the window was in doubt); the asking ends as the window fills with pairs
+    the prior got right, and never if that rule is off."""
+    indices = [0, 2, 3, 5, 6, 8, 9, 10, 11, 12, 13, 14]
+    reasons = {}
+    for share in (0.5, 1.0):
+        run = run_odometry(
+            synth,
+            Odometry(
+                IndexedOracle(synth), IcpPolish(), consult="on-doubt", doubt=DoubtRule(window=4, share=share)
+            ),
+            indices,
+        )
+        reasons[share] = [info["global"] for info in run.per_frame_info[1:]]
+    assert all(r.startswith("far from the prior") for r in reasons[0.5][1:6])
+    assert reasons[0.5][6] == "most recent pairs in doubt (3 of 4)"
+    assert reasons[0.5][7:] == ["not needed"] * 4
+    assert reasons[1.0][6:] == ["not needed"] * 5

@@ -37,7 +37,7 @@ Consult = Literal["every-frame", "on-doubt"]
 CONSULT_CHOICES: dict[str, str] = {
     "every-frame": "the global registrar on every pair; the polish starts from its estimate and the prior",
     "on-doubt": "the polish from the motion prior first; the global registrar only on a run's first pair, "
-    "where that result fits poorly or is implausible",
+    "where that result fits poorly, is implausible or far from the prior, and while most recent pairs were",
 }
 
 
@@ -74,12 +74,18 @@ class DoubtRule:
       where a wrong minimum can fit as well as the right one. The fit misses these quiet failures;
       keyframes saved by distance, whose spacing the constant-velocity prior cannot know, meet them
       most (docs/benchmarks.md, "Robust by default", has the measurements). A car at 10 Hz stays well inside.
+    - When the checks above doubted more than ``share`` of the last ``window`` pairs (at least half a
+      window of them): on such a stretch (keyframes, large strides) the prior is wrong more often than
+      right, so a pair it seems to get right is no more trustworthy than its neighbours, and asking on
+      it too adds little to what is asked already. A pair asked for this reason alone does not count
+      as doubted, so the asking ends when the prior holds again. 1 turns this off.
     """
 
     ratio: float = 0.8
     window: int = 20
     correction_m: float = BASIN_M
     correction_deg: float = BASIN_DEG
+    share: float = 0.5
 
 
 class Odometry:
@@ -143,6 +149,7 @@ class Odometry:
         self._pose: Transform = np.eye(4)
         self._last_motion: Transform = np.eye(4)
         self._fits: deque[float] = deque(maxlen=self.doubt.window)
+        self._doubted: deque[bool] = deque(maxlen=self.doubt.window)
         self.last_info = {}
 
     def prepare(self, frames: Sequence[tuple[Points, float]]) -> list[PreparedFrame]:
@@ -215,6 +222,8 @@ class Odometry:
             frame.polish, previous.polish, pose=self._pose, last_motion=self._last_motion
         )
         reason = self._doubt_about(attempt, seconds)
+        self._doubted.append(reason is not None)  # the prior's own record: asking for the share below
+        reason = reason or self._doubt_everywhere()  # does not count, so the share can fall again
         if reason is None:
             polished = self.polish.finish(attempt, frame.polish, previous.polish, None, pose=self._pose)
             self._fits.append(attempt.fit)
@@ -241,6 +250,12 @@ class Odometry:
         moved_m, turned_deg = attempt.correction
         if 0.0 < self.doubt.correction_m < moved_m or 0.0 < self.doubt.correction_deg < turned_deg:
             return f"far from the prior: {moved_m:.2f} m, {turned_deg:.1f} deg"
+        return None
+
+    def _doubt_everywhere(self) -> str | None:
+        doubted, seen = sum(self._doubted), len(self._doubted)
+        if 2 * seen >= self.doubt.window and doubted > self.doubt.share * seen:
+            return f"most recent pairs in doubt ({doubted} of {seen})"
         return None
 
     def _checked(self, result: RegistrationResult, seconds: float) -> tuple[Transform, dict[str, Any]]:
