@@ -286,3 +286,37 @@ def test_sigterm_stops_a_pool_suite_keeping_what_is_complete_and_a_rerun_finishe
     )
     assert rerun.returncode == 0, rerun.stderr
     assert {r["status"] for r in json.loads((out / "summary.json").read_text())["rows"]} == {"complete"}
+
+
+def test_a_pool_process_killed_under_a_cell_fails_its_cells_and_a_rerun_finishes_them(
+    data: Path, tmp_path: Path
+) -> None:
+    """A worker lost mid-cell (the OOM killer, a node gone) fails what it held, with the reason; the
+    suite goes on to its summary, and the rerun completes those cells."""
+    import multiprocessing
+    import threading
+
+    suite = write_suite(tmp_path / "suite.toml", data)
+    out = tmp_path / "out"
+
+    def kill_a_worker() -> None:
+        deadline = time.monotonic() + 120
+        while not any((out / "cells").glob("*/*/*_run_*")) and time.monotonic() < deadline:
+            time.sleep(0.01)
+        for child in multiprocessing.active_children():
+            os.kill(child.pid, signal.SIGKILL)
+
+    killer = threading.Thread(target=kill_a_worker)
+    killer.start()
+    outcome = run_suite(suite, out, jobs=2)
+    killer.join()
+    assert not outcome.interrupted
+    lost = [r for r in outcome.rows if r["status"] == "failed"]
+    assert lost and all("process was lost" in r["reason"] for r in lost)
+    rerun = run_suite(suite, out, jobs=2)
+    assert {r["status"] for r in rerun.rows} == {"complete"}
+    assert sorted(rerun.ran) == sorted(
+        f"{r['dataset']}/{r['method'].replace('+', '_')}_stride{r['stride']}"
+        for r in outcome.rows
+        if r["status"] != "complete"
+    )

@@ -73,13 +73,16 @@ def run_cell(cell: Cell, suite_folder: Path) -> dict[str, Any]:
         _run(cell, folder)
     except Exception as error:  # any error fails this cell alone, with its reason
         reason = str(error) if isinstance(error, VcrOdomError) else f"{type(error).__name__}: {error}"
-        write_json(
-            folder / FAILURE_FILE,
-            {
-                "reason": reason,
-                "traceback": None if isinstance(error, VcrOdomError) else traceback.format_exc(),
-            },
-        )
+        details = None if isinstance(error, VcrOdomError) else traceback.format_exc()
+        record_failure(cell, suite_folder, reason, details)
+    return read_row(cell, suite_folder)
+
+
+def record_failure(cell: Cell, suite_folder: Path, reason: str, details: str | None = None) -> dict[str, Any]:
+    """Mark ``cell`` failed (its process or node was lost, or its data is bad) and return its row."""
+    folder = cell_folder(suite_folder, cell)
+    folder.mkdir(parents=True, exist_ok=True)
+    write_json(folder / FAILURE_FILE, {"reason": reason, "traceback": details})
     return read_row(cell, suite_folder)
 
 

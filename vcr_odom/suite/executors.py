@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from vcr_odom.errors import ConfigError
-from vcr_odom.suite.cells import Cell, run_cell
+from vcr_odom.suite.cells import Cell, record_failure, run_cell
 
 OnDone = Callable[[Cell, dict[str, Any]], None]
 THREADS_VARIABLE = "VCR_ODOM_THREADS"
@@ -99,7 +99,16 @@ def run_on_pool(cells: Sequence[Cell], suite_folder: Path, on_done: OnDone, jobs
         while pending:
             done, _ = wait(pending, return_when=FIRST_COMPLETED)
             for future in done:
-                on_done(pending.pop(future), future.result())
+                cell = pending.pop(future)
+                try:
+                    row = future.result()
+                except KeyboardInterrupt:
+                    raise
+                except Exception as error:  # the process died (killed, out of memory): this cell fails
+                    row = record_failure(
+                        cell, suite_folder, f"its process was lost ({type(error).__name__}: {error})"
+                    )
+                on_done(cell, row)
     except BaseException:
         for future in pending:
             future.cancel()
@@ -137,7 +146,18 @@ def run_on_ray(cells: Sequence[Cell], suite_folder: Path, on_done: OnDone, addre
         while pending:
             done, _ = ray.wait(list(pending), num_returns=1)
             for ref in done:
-                on_done(pending.pop(ref), ray.get(ref))
+                cell = pending.pop(ref)
+                try:
+                    row = ray.get(ref)
+                except (
+                    ray.exceptions.RayTaskError,
+                    ray.exceptions.WorkerCrashedError,
+                    ray.exceptions.NodeDiedError,
+                ) as error:
+                    row = record_failure(
+                        cell, suite_folder, f"its Ray task was lost ({type(error).__name__}: {error})"
+                    )
+                on_done(cell, row)
     except BaseException:
         for ref in pending:
             ray.cancel(ref)
