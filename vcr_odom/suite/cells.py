@@ -14,13 +14,12 @@ import math
 import traceback
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 from vcr_odom.errors import VcrOdomError
 from vcr_odom.results import read_marker, write_json
 from vcr_odom.suite.spec import DatasetEntry, SuiteSpec
 
-CellStatus = Literal["complete", "partial", "failed", "pending"]
 FAILURE_FILE = "failure.json"
 
 
@@ -121,10 +120,6 @@ def attempts(folder: Path) -> list[tuple[Path, dict[str, Any]]]:
             if marker is not None:
                 found.append((path, marker))
     return sorted(found, key=lambda item: (item[1].get("written", ""), item[0].name))
-
-
-def cell_status(cell: Cell, suite_folder: Path) -> CellStatus:
-    return read_row(cell, suite_folder)["status"]
 
 
 def read_row(cell: Cell, suite_folder: Path) -> dict[str, Any]:

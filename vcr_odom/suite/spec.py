@@ -22,6 +22,7 @@ DATASET_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
 """A dataset's name becomes a folder: letters, digits, ``.``, ``_``, ``-``."""
 
 SOURCE_KEYS = ("data_root", "folder", "dataloader")
+PATH_KEYS = ("data_root", "folder", "poses", "calib", "times", "data")
 
 
 class DatasetEntry(Settings):
@@ -63,18 +64,10 @@ class DatasetEntry(Settings):
         return FrameSelection(**self.model_dump(exclude={"name"}), stride=stride)
 
     def resolved(self, base: Path) -> DatasetEntry:
-        """Relative paths taken from the suite file's folder, so a suite runs from anywhere."""
-        paths = {
-            key: base / value
-            for key in ("data_root", "folder", "poses", "calib", "times", "data")
-            if (value := getattr(self, key)) is not None and not value.expanduser().is_absolute()
-        }
-        expanded = {
-            key: getattr(self, key).expanduser()
-            for key in ("data_root", "folder", "poses", "calib", "times", "data")
-            if getattr(self, key) is not None and key not in paths
-        }
-        return self.with_changes(**paths, **expanded)
+        """``~`` expanded and relative paths taken from ``base`` (the suite file's folder), so a suite
+        runs the same from anywhere."""
+        paths = {key: getattr(self, key).expanduser() for key in PATH_KEYS if getattr(self, key) is not None}
+        return self.with_changes(**{key: base / path for key, path in paths.items()})
 
 
 class SuiteSpec(Settings):
