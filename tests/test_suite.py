@@ -90,13 +90,17 @@ def test_relative_paths_are_taken_from_the_suite_files_folder(tmp_path: Path) ->
 
 @pytest.fixture(scope="module")
 def serial(data: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
-    """The suite with a broken dataset, run one cell after the other."""
+    """The suite with a broken dataset and sequence 01 again as a scan folder, one cell after the other."""
     base = tmp_path_factory.mktemp("suite-serial")
-    suite = write_suite(
-        base / "suite.toml", data, extra=f'[[dataset]]\nname = "gone"\nfolder = "{base}/gone"\n'
+    extra = (
+        f'[[dataset]]\nname = "gone"\nfolder = "{base}/gone"\n'
+        f'[[dataset]]\nname = "scans"\nfolder = "{data}/sequences/01/velodyne"\n'
+        f'poses = "{data}/poses/01.txt"\ntimes = "{data}/sequences/01/times.txt"\n'
+        f'calib = "{data}/sequences/01/calib.txt"\n'
     )
+    suite = write_suite(base / "suite.toml", data, extra=extra)
     outcome = run_suite(suite, base / "out", jobs=1)
-    assert not outcome.interrupted and len(outcome.ran) == 12
+    assert not outcome.interrupted and len(outcome.ran) == 16
     return suite, base / "out"
 
 
@@ -128,8 +132,11 @@ def test_a_cell_equals_a_standalone_run_of_the_same_data_method_and_stride(
 def test_a_failing_dataset_fails_alone_with_its_reason(serial: tuple[Path, Path]) -> None:
     _, out = serial
     rows = json.loads((out / "summary.json").read_text())["rows"]
-    assert len(rows) == 12
+    assert len(rows) == 16
     assert {r["status"] for r in rows if r["dataset"] != "gone"} == {"complete"}
+    same_frames = {(r["method"], r["stride"]): r["ate_m"] for r in rows if r["dataset"] == "b"}
+    as_folder = {(r["method"], r["stride"]): r["ate_m"] for r in rows if r["dataset"] == "scans"}
+    assert as_folder == same_frames  # sequence 01 read as a KITTI root and as a scan folder
     gone = [r for r in rows if r["dataset"] == "gone"]
     assert {r["status"] for r in gone} == {"failed"}
     assert all("gone" in r["reason"] and "does not exist" in r["reason"] for r in gone)
@@ -320,3 +327,18 @@ def test_a_pool_process_killed_under_a_cell_fails_its_cells_and_a_rerun_finishes
         for r in outcome.rows
         if r["status"] != "complete"
     )
+
+
+def test_the_command_names_a_bad_suite_file_and_exits_2_before_any_work(tmp_path: Path) -> None:
+    from click.testing import CliRunner
+
+    from vcr_odom.cli.main import cli
+
+    suite = tmp_path / "suite.toml"
+    suite.write_text('methods = ["kiss-icp"]\n[[dataset]]\nname = "a"\n')
+    result = CliRunner().invoke(cli, ["benchmark", str(suite), "--out", str(tmp_path / "out")])
+    assert result.exit_code == 2
+    assert (
+        str(suite) in result.output and "give exactly one of data_root, folder, dataloader" in result.output
+    )
+    assert not (tmp_path / "out").exists()
