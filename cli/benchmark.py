@@ -6,17 +6,10 @@ from __future__ import annotations
 from pathlib import Path
 
 import click
-from rich.progress import (
-    BarColumn,
-    MofNCompleteColumn,
-    Progress,
-    TextColumn,
-    TimeElapsedColumn,
-    TimeRemainingColumn,
-)
+from rich.progress import Progress
 from rich.table import Table
 
-from vcr_odom.cli.progress import EXIT_CODES_HELP, console, exit_interrupted, interrupt_label
+from vcr_odom.cli.progress import EXIT_CODES_HELP, bar_columns, console, exit_interrupted, interrupt_label
 
 SUITE_HELP = """\b
 A suite file (TOML):
@@ -64,15 +57,7 @@ def benchmark(suite_file: Path, out: Path | None, jobs: int, ray_address: str | 
     _, cells, todo = plan(suite_file, folder)
     if len(todo) < len(cells):
         console.print(f"{len(cells) - len(todo)} of {len(cells)} cells complete in {folder}: skipped")
-    columns = (
-        TextColumn("[bold]{task.description}"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TextColumn("{task.fields[last]}"),
-        TimeElapsedColumn(),
-        TimeRemainingColumn(),
-    )
-    with Progress(*columns, console=console) as progress:
+    with Progress(*bar_columns("last"), console=console) as progress:
         task = progress.add_task("cells", total=len(todo), last="")
 
         def on_cell(cell: object, row: dict[str, object]) -> None:

@@ -66,6 +66,10 @@ def figures(rows: list[dict]) -> list[dict]:
         ),
         ('methods = ["icp"]\n[[dataset]]\nname = "a"\nfolder = "x"\nspeed = 3\n', "speed: Extra inputs"),
         ("methods = [icp\n", "not valid TOML"),
+        (
+            'methods = ["icp"]\n[[dataset]]\nname = "a"\nfolder = "x"\nstride = 2\n',
+            "the suite's strides apply",
+        ),
     ],
 )
 def test_a_bad_suite_file_is_named_with_its_mistake(tmp_path: Path, text: str, message: str) -> None:

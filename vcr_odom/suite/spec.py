@@ -25,23 +25,12 @@ SOURCE_KEYS = ("data_root", "folder", "dataloader")
 PATH_KEYS = ("data_root", "folder", "poses", "calib", "times", "data")
 
 
-class DatasetEntry(Settings):
+class DatasetEntry(FrameSelection):
     """One ``[[dataset]]`` table: a name and ``run``'s data options (``data_root`` + ``seq``, or
     ``folder`` (+ ``poses``, ``times``, ``calib``), or ``dataloader`` + ``data`` (+ ``topic``)),
-    optionally ``frames = "A:B"``."""
+    optionally ``frames = "A:B"``; the strides are the suite's."""
 
     name: str
-    data_root: Path | None = None
-    seq: str = "00"
-    folder: Path | None = None
-    poses: Path | None = None
-    calib: Path | None = None
-    times: Path | None = None
-    bin_columns: int = FrameSelection.model_fields["bin_columns"].default
-    dataloader: str | None = None
-    data: Path | None = None
-    topic: str | None = None
-    frames: str | None = None
 
     @field_validator("name")
     @classmethod
@@ -52,6 +41,10 @@ class DatasetEntry(Settings):
 
     @model_validator(mode="after")
     def _one_source(self) -> DatasetEntry:
+        if "stride" in self.model_fields_set:
+            raise ValueError(
+                "stride: the suite's strides apply to every dataset (strides = [...] at the top)"
+            )
         given = [key for key in SOURCE_KEYS if getattr(self, key) is not None]
         if len(given) != 1:
             raise ValueError(
@@ -61,13 +54,14 @@ class DatasetEntry(Settings):
 
     def selection(self, stride: int) -> FrameSelection:
         """``run``'s frame selection for this dataset at ``stride``."""
-        return FrameSelection(**self.model_dump(exclude={"name"}), stride=stride)
+        return FrameSelection(**self.model_dump(exclude={"name", "stride"}), stride=stride)
 
     def resolved(self, base: Path) -> DatasetEntry:
         """``~`` expanded and relative paths taken from ``base`` (the suite file's folder), so a suite
         runs the same from anywhere."""
         paths = {key: getattr(self, key).expanduser() for key in PATH_KEYS if getattr(self, key) is not None}
-        return self.with_changes(**{key: base / path for key, path in paths.items()})
+        resolved = {key: base / path for key, path in paths.items()}
+        return DatasetEntry(**{**self.model_dump(exclude={"stride"}), **resolved})
 
 
 class SuiteSpec(Settings):
