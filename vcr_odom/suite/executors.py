@@ -121,8 +121,10 @@ def run_on_pool(cells: Sequence[Cell], suite_folder: Path, on_done: OnDone, jobs
 
 
 def run_on_ray(cells: Sequence[Cell], suite_folder: Path, on_done: OnDone, address: str, jobs: int) -> None:
-    """Ray tasks, one per cell, each asking for ``threads`` CPUs: ``address="local"`` starts a local
-    cluster of ``jobs`` CPUs here, any other joins that cluster (``auto``, ``ray://host:10001``, ...).
+    """Ray tasks, one per cell, each asking for one of the cluster's CPUs (a cell slot):
+    ``address="local"`` starts a local cluster of ``jobs`` slots here, each cell taking cores / jobs
+    threads; any other address joins that cluster (``auto``, ``ray://host:10001``, ...), one thread a
+    cell, as many cells per node as it has CPUs.
 
     On Ctrl-C or SIGTERM the running tasks are cancelled (a KeyboardInterrupt in each: its cell keeps
     its partial result) and the queued ones never start."""
@@ -139,7 +141,7 @@ def run_on_ray(cells: Sequence[Cell], suite_folder: Path, on_done: OnDone, addre
             ray.init(num_cpus=jobs, include_dashboard=False, **options)
         else:
             ray.init(address=address, **options)
-    remote = ray.remote(num_cpus=threads, max_retries=0)(_ray_cell)
+    remote = ray.remote(num_cpus=1, max_retries=0)(_ray_cell)  # never more than a --jobs 1 cluster has
     pending: dict[Any, Cell] = {}
     try:
         pending = {remote.remote(cell, str(suite_folder), threads): cell for cell in cells}
