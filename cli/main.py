@@ -77,6 +77,7 @@ def _group() -> click.Group:
     """The click group with every command (imports them all: seconds, for torch and open3d)."""
     import click
 
+    from vcr_odom.cli.benchmark import benchmark
     from vcr_odom.cli.compare import compare
     from vcr_odom.cli.demo import demo
     from vcr_odom.cli.evaluate import evaluate
@@ -103,6 +104,7 @@ def _group() -> click.Group:
         map_command,
         evaluate,
         compare,
+        benchmark,
         synth,
         demo,
         cache_command,

@@ -16,6 +16,7 @@ from rich.progress import (
     BarColumn,
     MofNCompleteColumn,
     Progress,
+    ProgressColumn,
     TextColumn,
     TimeElapsedColumn,
     TimeRemainingColumn,
@@ -29,18 +30,22 @@ notes = Console(stderr=True)
 """Warnings and side notes go to stderr, so ``--json -`` output stays parseable."""
 
 
-@contextmanager
-def frame_progress(description: str, total: int) -> Iterator[Callable[..., None]]:
-    """Yields a callback that advances the bar by one frame (its arguments are ignored)."""
-    columns = (
+def bar_columns(field: str) -> tuple[ProgressColumn, ...]:
+    """A progress bar's columns: what, the bar, done of total, the task's ``field``, elapsed, ETA."""
+    return (
         TextColumn("[bold]{task.description}"),
         BarColumn(),
         MofNCompleteColumn(),
-        TextColumn("{task.fields[fps]}"),
+        TextColumn(f"{{task.fields[{field}]}}"),
         TimeElapsedColumn(),
         TimeRemainingColumn(),
     )
-    with Progress(*columns, console=console, transient=False) as progress:
+
+
+@contextmanager
+def frame_progress(description: str, total: int) -> Iterator[Callable[..., None]]:
+    """Yields a callback that advances the bar by one frame (its arguments are ignored)."""
+    with Progress(*bar_columns("fps"), console=console, transient=False) as progress:
         task = progress.add_task(description, total=total, fps="")
 
         def advance(*_args: object) -> None:

@@ -6,6 +6,7 @@ options of a configuration field are generated from it (:mod:`vcr_odom.cli.confi
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -150,7 +151,10 @@ def _run(task: str, options: dict[str, Any]) -> None:
             progress=events,
             frames_progress=frames,
         )
-    console.print(f"best epoch {result.best_epoch + 1} (score {result.best_score:.4g}): {result.best_path}")
+    if int(os.environ.get("RANK", "0")) == 0:  # under torchrun every rank gets here; rank 0 wrote the file
+        console.print(
+            f"best epoch {result.best_epoch + 1} (score {result.best_score:.4g}): {result.best_path}"
+        )
 
 
 @contextmanager

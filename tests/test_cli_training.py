@@ -3,6 +3,10 @@
 from __future__ import annotations
 
 import json
+import os
+import re
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -181,3 +185,44 @@ def test_the_point_count_is_an_option_of_cache_and_train_and_must_agree(syntheti
         cli, ["train", "--cache", str(small), "--num-points", "8", "--out", str(tmp_path)]
     )
     assert bad.exit_code == 2 and "num_points" in bad.output
+
+
+def test_vcr_odom_train_runs_under_torchrun_on_two_cpu_processes(synthetic_root, tmp_path):
+    """The command a cluster runs (docs/scaling.md): torchrun starts two ranks of ``vcr-odom train``
+    (gloo on CPU); each takes half the batches, and rank 0 alone writes the run's files."""
+    cache = tmp_path / "seq00.npz"
+    invoke("cache", "--data-root", synthetic_root, "--seq", "00", "--out", cache)
+    torchrun = Path(sys.executable).with_name("torchrun")
+    done = subprocess.run(
+        [
+            str(torchrun),
+            "--standalone",
+            "--nproc-per-node",
+            "2",
+            "-m",
+            "vcr_odom.cli.main",
+            "train",
+            "--cache",
+            str(cache),
+            "--batch-size",
+            "2",
+            "--device",
+            "cpu",
+            "--epochs",
+            "1",
+            "--out",
+            str(tmp_path / "run"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+        env={**os.environ, "OMP_NUM_THREADS": "1", "CUDA_VISIBLE_DEVICES": "", "COLUMNS": "200"},
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert done.stdout.count("best epoch 1") == 1
+    steps = re.search(r"train epoch 1/1 \S+ (\d+)/(\d+)", done.stdout)
+    pairs = int(re.search(r"(\d+) training and", done.stdout).group(1))
+    assert steps is not None and int(steps.group(2)) == -(-pairs // (2 * 2))  # half the pairs per rank
+    assert json.loads((tmp_path / "run" / "history.json").read_text())[0]["epoch"] == 0
+    assert (tmp_path / "run" / "best.safetensors").is_file()

@@ -99,3 +99,25 @@ def test_a_sparse_spinning_scan_keeps_kiss_icps_voxel() -> None:
     assert ring_structured(rings)
     assert not ring_structured(_walls(0.25, np.random.default_rng(4)))
     assert density_voxel(rings, config) == config.mapping.voxel_size
+
+
+@pytest.mark.filterwarnings("ignore:.*no timestamps")
+def test_a_runs_metrics_name_the_polish_voxel_it_chose(small_synthetic_root: Path, tmp_path: Path) -> None:
+    """The grid a run's map was built on is in its metrics.json (it differs by sensor: a user comparing
+    two runs must be able to see it), and it is the one the first frame chooses."""
+    import json
+
+    from vcr_odom.data.selection import FrameSelection
+    from vcr_odom.odometry.run import RunSettings, run_sequence
+
+    selection = FrameSelection(data_root=small_synthetic_root, seq="00")
+    outcome = run_sequence(
+        RunSettings(selection=selection, method="icp10", polish="kiss-icp", results_dir=tmp_path)
+    )
+    metrics = json.loads((outcome.folder / "metrics.json").read_text())
+    first = open_sequence("00", data_root=small_synthetic_root).frame(0)
+    expected = KissIcpPolish()
+    expected.prepare(first)
+    assert metrics["run"]["polish_voxel_m"] == pytest.approx(expected.voxel_size)
+    unpolished = run_sequence(RunSettings(selection=selection, method="icp10", results_dir=tmp_path))
+    assert json.loads((unpolished.folder / "metrics.json").read_text())["run"]["polish_voxel_m"] is None

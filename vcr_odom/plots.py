@@ -100,3 +100,25 @@ def plot_pair_errors(
     top.legend(loc="best", fontsize=8)
     top.set_title(printable(title))
     return _save(figure, path)
+
+
+def plot_grouped_bars(
+    path: str | os.PathLike[str],
+    panels: Mapping[str, tuple[Sequence[str], Mapping[str, Sequence[float]]]],
+    *,
+    ylabel: str,
+) -> Path:
+    """One panel per key: a group of bars per label, a bar per series (NaN: no bar), e.g. a suite's
+    drift per dataset (groups) and method (series), one panel per stride."""
+    figure, axes = plt.subplots(len(panels), 1, figsize=(8, 3.5 * len(panels)), squeeze=False)
+    for axis, (title, (groups, series)) in zip(axes[:, 0], panels.items(), strict=True):
+        width = 0.8 / max(1, len(series))
+        positions = np.arange(len(groups))
+        for k, (name, values) in enumerate(series.items()):
+            axis.bar(positions + k * width, values, width, label=printable(name))
+        axis.set_xticks(positions + 0.4 - width / 2, [printable(g) for g in groups])
+        axis.set_ylabel(ylabel)
+        axis.set_title(printable(title))
+        axis.legend(fontsize=8)
+    figure.tight_layout()
+    return _save(figure, path)

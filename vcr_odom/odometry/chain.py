@@ -182,10 +182,13 @@ class Odometry:
         previous = self._previous
         if previous is None:
             self._previous = frame
+            self.last_info = {}
             if self.polish is not None:
                 self.polish.start(frame.polish)
-            self.last_info = {}
-            return Step(self._pose.copy())
+                voxel = getattr(self.polish, "voxel_size", None)  # kiss-icp's map grid, chosen by now
+                if voxel is not None:
+                    self.last_info = {"polish_voxel_m": voxel}
+            return Step(self._pose.copy(), dict(self.last_info))
         seconds = frame.timestamp - previous.timestamp
         if self.consult == "on-doubt":
             motion, info = self._from_prior_first(frame, previous, seconds)

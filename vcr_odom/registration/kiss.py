@@ -5,6 +5,7 @@ It keeps state across frames, so it is a :class:`SequentialOdometry`, not a pair
 
 from __future__ import annotations
 
+import os
 import warnings
 
 import numpy as np
@@ -14,6 +15,18 @@ from kiss_icp.kiss_icp import KissICP
 from vcr_odom.data.base import Points
 from vcr_odom.errors import ConfigError, DataWarning
 from vcr_odom.geometry import Transform
+
+
+def threads_from_environment() -> int:
+    """``$VCR_ODOM_THREADS`` (0 where unset: every core); a value that is not a count is named."""
+    text = os.environ.get("VCR_ODOM_THREADS", "").strip()
+    if not text:
+        return 0
+    if not text.isdigit():
+        raise ConfigError(
+            f"$VCR_ODOM_THREADS must be a whole number of threads (0: every core); got {text!r}"
+        )
+    return int(text)
 
 
 def kiss_config(
@@ -27,7 +40,8 @@ def kiss_config(
     """kiss-icp's default configuration (``load_config(None)``) with our data settings.
 
     ``deskew=False``: KITTI ``.bin`` scans carry no per-point times (kiss-icp's own KITTI reader
-    passes none either). ``voxel_size=None`` follows kiss-icp's rule ``max_range / 100``.
+    passes none either). ``max_num_threads=0`` takes ``$VCR_ODOM_THREADS`` where set (a benchmark's
+    pool process: its share of the cores), else every core. ``voxel_size=None`` follows kiss-icp's rule ``max_range / 100``.
     ``convergence_criterion=None`` keeps kiss-icp's own (1e-4); the polish stops earlier.
     """
     if not 0.0 <= min_range < max_range:
@@ -37,7 +51,7 @@ def kiss_config(
     config.data.min_range = float(min_range)
     config.data.deskew = bool(deskew)
     config.mapping.voxel_size = float(max_range / 100.0 if voxel_size is None else voxel_size)
-    config.registration.max_num_threads = int(max_num_threads)
+    config.registration.max_num_threads = int(max_num_threads) or threads_from_environment()
     if convergence_criterion is not None:
         if not convergence_criterion > 0:
             raise ConfigError(f"convergence_criterion must be > 0; got {convergence_criterion}")
