@@ -10,49 +10,21 @@ module imports nothing heavy at its top: ``cli``, the click group, is built on f
 from __future__ import annotations
 
 import io
-import os
 import signal
 import sys
 from functools import cache
-from types import FrameType
 from typing import TYPE_CHECKING, Any
 
-from vcr_odom.errors import Interrupted
+from vcr_odom.stop_signals import (  # also importable from here, as before
+    STOP_SIGNALS,
+    _stopping,
+    signal_label,
+    stop_on_signals,
+    stopping_signal,
+)
 
 if TYPE_CHECKING:
     import click
-
-STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
-_stopping: list[int] = []
-"""The signal that is stopping the command, once one came (a list: set from a signal handler)."""
-
-
-def signal_label(signum: int) -> str:
-    """``Ctrl-C`` for SIGINT, else the signal's name (``SIGTERM``)."""
-    return "Ctrl-C" if signum == signal.SIGINT else signal.Signals(signum).name
-
-
-def stopping_signal() -> int | None:
-    """The signal that stopped this command (None: none came, as in tests calling ``cli`` directly)."""
-    return _stopping[0] if _stopping else None
-
-
-def stop_on_signals() -> None:
-    """Ctrl-C, SIGTERM and SIGHUP raise :class:`~vcr_odom.errors.Interrupted` (a KeyboardInterrupt,
-    so what was done is kept as for Ctrl-C); those that come after it are held: the command is already
-    stopping, and a second interrupt must not cut short the writing of what was done. A signal ignored
-    already stays ignored: ``nohup`` ignores SIGHUP, a shell ignores Ctrl-C for a job started with ``&``."""
-    for signum in STOP_SIGNALS:
-        if signal.getsignal(signum) is not signal.SIG_IGN:
-            signal.signal(signum, _stop)
-
-
-def _stop(signum: int, _frame: FrameType | None) -> None:
-    if _stopping:
-        os.write(2, b"vcr-odom: already stopping; writing what was done first (Ctrl-\\ abandons it)\n")
-        return
-    _stopping.append(signum)
-    raise Interrupted(signum, signal_label(signum))
 
 
 def main() -> None:

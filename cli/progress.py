@@ -22,7 +22,7 @@ from rich.progress import (
     TimeRemainingColumn,
 )
 
-from vcr_odom.cli.main import signal_label, stopping_signal
+from vcr_odom.stop_signals import signal_label, stopping_signal
 
 # Piped output (logs, CI, README tables) gets a wide console instead of rich's 80-column default.
 console = Console() if sys.stdout.isatty() else Console(width=170)

@@ -39,6 +39,7 @@ from typing import Any, Literal
 from vcr_odom.errors import ConfigError, DataError, Interrupted
 from vcr_odom.io import atomic_write_text
 from vcr_odom.jsonsafe import json_safe
+from vcr_odom.stop_signals import STOP_SIGNALS
 
 TRACKED_DISTRIBUTIONS = (
     "vcr-odom",
@@ -57,8 +58,6 @@ MARKER = "result.json"
 Status = Literal["complete", "partial"]
 _UNIT_LINK = ".unit"
 _UNIT_PREFIX = ".unit-"
-STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
-"""The signals that ask a command to stop, as Ctrl-C does (see :class:`~vcr_odom.errors.Interrupted`)."""
 
 
 # -- checking where results go, before any work ------------------------------------------------------

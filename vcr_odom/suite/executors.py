@@ -62,7 +62,7 @@ def limit_threads(threads: int) -> None:
     import torch
 
     torch.set_num_threads(threads)
-    from vcr_odom.cli.main import stop_on_signals
+    from vcr_odom.stop_signals import stop_on_signals
 
     stop_on_signals()
 
@@ -77,7 +77,7 @@ def run_here(cells: Sequence[Cell], suite_folder: Path, on_done: OnDone) -> None
 
 
 def _pool_cell(cell: Cell, suite_folder: Path) -> dict[str, Any]:
-    from vcr_odom.cli.main import stopping_signal
+    from vcr_odom.stop_signals import stopping_signal
 
     if stopping_signal() is not None:  # this process was told to stop: start nothing new
         raise KeyboardInterrupt
