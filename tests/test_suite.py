@@ -346,3 +346,28 @@ def test_the_command_names_a_bad_suite_file_and_exits_2_before_any_work(tmp_path
         str(suite) in result.output and "give exactly one of data_root, folder, dataloader" in result.output
     )
     assert not (tmp_path / "out").exists()
+
+
+def test_a_recording_and_a_map_cell_take_their_place_in_a_suite(data: Path, tmp_path: Path) -> None:
+    """Fleets: a dataset may be a recording (here a ROS 2 bag of sequence 01's frames, with its poses
+    and calibration), and a ``+loops`` method is a ``vcr-odom map`` cell."""
+    pytest.importorskip("rosbags")
+    from test_data_recordings import write_ros2
+
+    from vcr_odom.data import open_sequence
+
+    scans = open_sequence("01", data_root=data)
+    bag = write_ros2(tmp_path / "drive", [scans.frame(i) for i in range(len(scans))])
+    suite = tmp_path / "suite.toml"
+    suite.write_text(
+        'methods = ["icp10", "icp10+loops"]\n'
+        f'[[dataset]]\nname = "b"\ndata_root = "{data}"\nseq = "01"\n'
+        f'[[dataset]]\nname = "bag"\ndataloader = "rosbag"\ndata = "{bag}"\n'
+        f'poses = "{data}/poses/01.txt"\ncalib = "{data}/sequences/01/calib.txt"\n'
+    )
+    rows = {(r["dataset"], r["method"]): r for r in run_suite(suite, tmp_path / "out").rows}
+    assert {r["status"] for r in rows.values()} == {"complete"}
+    assert rows["bag", "icp10"]["ate_m"] == rows["b", "icp10"]["ate_m"]  # the same frames, read from a bag
+    assert "_map_" in rows["b", "icp10+loops"]["folder"]
+    assert (tmp_path / "out" / rows["b", "icp10+loops"]["folder"] / "loops.json").is_file()
+    assert rows["b", "icp10+loops"]["ate_m"] == rows["b", "icp10"]["ate_m"]  # no revisit: unchanged
