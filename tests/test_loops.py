@@ -254,3 +254,34 @@ def test_a_node_with_an_empty_scan_is_rejected_not_an_error(sample_nodes) -> Non
     empty = [nodes[0], dataclasses.replace(nodes[1], cloud=np.zeros((0, 3), np.float32))]
     decision = LoopVerifier(VcrRegistrar(device="cpu")).verify(_candidate(truth, np.eye(4), 60.0), empty)
     assert not decision.accepted and decision.reason.startswith("rejected: too few points")
+
+
+def test_the_loop_network_shares_the_odometrys_weights_with_its_own_passes(
+    small_synthetic_root: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A VCR-based odometry's network is loaded once and shared with the loop closure, which runs the
+    weights' own number of passes; a non-VCR odometry's loops load their own network; and run's
+    --save-map, which map would ignore, is refused by name."""
+    from vcr_odom.data.selection import FrameSelection
+    from vcr_odom.errors import ConfigError
+    from vcr_odom.loops.pipeline import MapSettings, loop_network
+    from vcr_odom.odometry.run import method_for
+    from vcr_odom.registration import vcr as vcr_module
+
+    loads = []
+    original = vcr_module.load_weights
+    monkeypatch.setattr(vcr_module, "load_weights", lambda *a, **k: loads.append(a) or original(*a, **k))
+    settings = MapSettings(
+        selection=FrameSelection(data_root=small_synthetic_root), method="vcr", device="cpu"
+    )
+    odometry = method_for(settings)
+    network = loop_network(settings.weights, settings.device, settings.vcr_points, odometry)
+    assert len(loads) == 1 and network.model is odometry.registrar.model
+    assert odometry.registrar.passes == 1 and network.passes == vcr_module.default_passes(network.config)
+    icp = method_for(settings.with_changes(method="icp10"))
+    assert (
+        loop_network(settings.weights, settings.device, settings.vcr_points, icp).model is not network.model
+    )
+    assert len(loads) == 2
+    with pytest.raises(ConfigError, match="save_map does not apply to map"):
+        MapSettings(selection=settings.selection, save_map=Path("map.ply"))

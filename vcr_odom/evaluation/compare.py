@@ -205,7 +205,7 @@ def _build(spec: str, settings: CompareSettings) -> Method:
         return Unavailable(error)
     if not mapped:
         return odometry
-    return Mapped(odometry, loop_network(settings.weights, settings.device, settings.vcr_points))
+    return Mapped(odometry, loop_network(settings.weights, settings.device, settings.vcr_points, odometry))
 
 
 def pair_kinds_to_run(settings: CompareSettings, sequence: LidarSequence) -> tuple[str, ...]:

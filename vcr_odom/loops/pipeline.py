@@ -9,6 +9,7 @@ odometry's trajectory, marked partial with the reason.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import resource
 import sys
@@ -21,7 +22,7 @@ from typing import Any
 
 import numpy as np
 import open3d as o3d
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from vcr_odom.data.base import LidarSequence, Points
 from vcr_odom.geometry import Transform, lidar_to_camera_poses
@@ -44,7 +45,7 @@ from vcr_odom.odometry.outputs import Checkpoints, ground_truth_for, run_summary
 from vcr_odom.odometry.run import ProgressFactory, RunSettings, method_for
 from vcr_odom.plots import plot_trajectories
 from vcr_odom.registration.base import SequentialOdometry
-from vcr_odom.registration.vcr import VcrRegistrar
+from vcr_odom.registration.vcr import VcrRegistrar, default_passes
 from vcr_odom.results import (
     check_output_folder,
     create_result_folder,
@@ -76,6 +77,15 @@ class MapSettings(RunSettings, LoopOptions):
     """Everything ``vcr-odom map`` is told: ``run``'s options (without ``--save-map``: the map is
     always written into the folder) and the loop closure's."""
 
+    @model_validator(mode="after")
+    def _no_save_map(self) -> MapSettings:
+        if self.save_map is not None:
+            raise ValueError(
+                "save_map does not apply to map: map.ply is always written into the result folder, "
+                "from the optimised poses"
+            )
+        return self
+
 
 @dataclass
 class MapOutcome:
@@ -102,8 +112,22 @@ class MapOutcome:
         )
 
 
-def loop_network(weights: Path | None, device: str, points: int | None) -> VcrRegistrar:
-    """The network that registers loop candidates (loaded before any folder: a bad file fails first)."""
+def loop_network(
+    weights: Path | None,
+    device: str,
+    points: int | None,
+    odometry: Odometry | SequentialOdometry | None = None,
+) -> VcrRegistrar:
+    """The network that registers loop candidates (loaded before any folder: a bad file fails first).
+
+    Where the odometry already runs VCR-Net from the same options, its loaded network is shared (one
+    copy of the weights in memory, one load) with the weights' own number of passes: the odometry's
+    polished pairs run one, a loop with no guess takes what the weights default to."""
+    registrar = getattr(odometry, "registrar", None)
+    if isinstance(registrar, VcrRegistrar):
+        shared = copy.copy(registrar)
+        shared.passes = default_passes(shared.config)
+        return shared
     return VcrRegistrar(weights=weights, device=device, num_points=points)
 
 
@@ -113,7 +137,7 @@ def map_sequence(settings: MapSettings, progress: ProgressFactory | None = None)
     sequence = settings.selection.open()
     indices = settings.selection.indices(sequence)
     odometry = method_for(settings)
-    network = loop_network(settings.weights, settings.device, settings.vcr_points)
+    network = loop_network(settings.weights, settings.device, settings.vcr_points, odometry)
     folder = create_result_folder(
         settings.results_dir,
         f"map_{sequence.label}_{settings.spec}",
