@@ -26,9 +26,9 @@ lint: setup
 format: setup
 	$(BIN)/ruff format . && $(BIN)/ruff check --fix .
 
-## Rerun the benchmarks behind the generated tables of docs/benchmarks.md (hours on 2 cores).
+## Rerun the benchmarks behind the generated tables of docs/benchmarks.md and docs/scaling.md (hours on 2 cores).
 tables: setup
-	$(BIN)/python benchmarks/regenerate_tables.py --page docs/benchmarks.md --work runs/tables
+	$(BIN)/python benchmarks/regenerate_tables.py --work runs/tables
 
 clean:
 	rm -rf $(VENV) .pytest_cache .ruff_cache *.egg-info

@@ -7,8 +7,8 @@ Writes ``--datasets`` synthetic drives (seeds 901...; HDL-64E, suburban) under W
 suite of them x methods icp10, kiss-icp x strides 1, 2 (64 cells by default), then runs that suite once
 per configuration into a fresh folder: ``jobs:N`` a process pool of N, ``ray:N`` a local Ray cluster of N
 CPUs. Per configuration: wall time, cells/s, the speed-up over the first configuration, the cells' own
-time (summed from their metrics.json) and what the scheduler added; and whether every configuration
-gave the same rows as the first (figures to 1e-6; speed and folder names aside).
+time (summed from their metrics.json); and whether every configuration gave the same rows as the
+first (figures to 1e-6; speed and folder names aside). The table goes to stdout, progress to stderr.
 """
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -78,7 +79,7 @@ def main() -> None:
         wall = time.perf_counter() - started
         own = cell_seconds(out, outcome.rows)
         results.append((config, wall, own, outcome.rows))
-        print(f"{config}: {wall:.1f} s for {len(outcome.rows)} cells", flush=True)
+        print(f"{config}: {wall:.1f} s for {len(outcome.rows)} cells", file=sys.stderr, flush=True)
     base_wall, base_rows = results[0][1], figures(results[0][3])
     lines = [
         "| where | cells | wall [s] | cells/s | speed-up | cells' own time [s] | same rows |",
