@@ -122,6 +122,12 @@ def run(ctx: click.Context, selection: FrameSelection, **options: object) -> Non
             f"replaced by the previous motion, or kept where the frame rate is assumed): "
             f"{result.flagged_frames[:20]}; reasons in metrics.json"
         )
+    if result.single_plane_frames:
+        console.print(
+            f"[yellow]{len(result.single_plane_frames)} frame(s) where the scan is almost one plane (the "
+            "road, a wall): motion along it cannot be measured there, so those poses may slide: "
+            f"{result.single_plane_frames[:20]}; single_plane_frames in metrics.json"
+        )
     if report is not None:
         title = f"{settings.spec} on {outcome.sequence.name} (stride {selection.stride})"
         console.print(report_table(report, title=title))

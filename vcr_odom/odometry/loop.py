@@ -24,6 +24,7 @@ from vcr_odom.device import cores_shared_by
 from vcr_odom.errors import ConfigError
 from vcr_odom.geometry import Transform
 from vcr_odom.odometry.chain import Odometry, PreparedFrame, Step
+from vcr_odom.odometry.degeneracy import single_plane
 from vcr_odom.registration.base import FinishingOdometry, SequentialOdometry
 from vcr_odom.results import interruption_reason
 
@@ -57,6 +58,16 @@ class OdometryRun:
         """Frames whose motion estimate was implausible and replaced (see ``MotionLimits``)."""
         return [
             i for i, info in zip(self.frame_indices, self.per_frame_info, strict=False) if info.get("flagged")
+        ]
+
+    @property
+    def single_plane_frames(self) -> list[int]:
+        """Frames whose scan was almost one plane (:mod:`~vcr_odom.odometry.degeneracy`): their motion
+        along it could not be measured, whatever the method reported."""
+        return [
+            i
+            for i, info in zip(self.frame_indices, self.per_frame_info, strict=False)
+            if "single_plane_m" in info
         ]
 
     @property
@@ -204,7 +215,10 @@ def run_odometry(
                     item[0], item[1], _steps(method, item, timer), strict=True
                 ):
                     poses.append(np.asarray(step.pose, dtype=np.float64))
-                    infos.append(step.info)
+                    thickness = single_plane(points)
+                    infos.append(
+                        step.info if thickness is None else {**step.info, "single_plane_m": thickness}
+                    )
                     used.append(index)
                     if on_frame is not None:
                         on_frame(index, step.pose, points)

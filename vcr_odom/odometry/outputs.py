@@ -153,6 +153,7 @@ def run_summary(run: OdometryRun) -> dict[str, Any]:
             for index, info in zip(run.frame_indices, run.per_frame_info, strict=False)
             if info.get("flagged")
         },
+        "single_plane_frames": run.single_plane_frames,
         "polish_starts": polish_starts(run),
         "polish_voxel_m": run.per_frame_info[0].get("polish_voxel_m") if run.per_frame_info else None,
         "global_registration": global_consultations(run),
