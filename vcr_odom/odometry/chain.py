@@ -37,7 +37,8 @@ Consult = Literal["every-frame", "on-doubt"]
 CONSULT_CHOICES: dict[str, str] = {
     "every-frame": "the global registrar on every pair; the polish starts from its estimate and the prior",
     "on-doubt": "the polish from the motion prior first; the global registrar only on a run's first pair, "
-    "where that result fits poorly, is implausible or far from the prior, and while most recent pairs were",
+    "where that result fits poorly, is implausible or far from the prior, and on every pair while most "
+    "recent pairs were in doubt",
 }
 
 

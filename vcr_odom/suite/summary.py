@@ -16,7 +16,9 @@ from typing import Any
 
 import numpy as np
 
-from vcr_odom.io import atomic_write_text
+from vcr_odom.errors import VcrOdomError
+from vcr_odom.geometry import camera_to_lidar_poses, normalise_to_first
+from vcr_odom.io import atomic_write_text, read_kitti_poses
 from vcr_odom.results import write_json
 
 DEVKIT_LABEL = "KITTI devkit drift over segments of 100-800 m"
@@ -157,8 +159,8 @@ def _weighted(pairs: Sequence[tuple[float, int]]) -> float | None:
 
 def write_plots(suite_folder: Path, rows: Sequence[dict[str, Any]], datasets: dict[str, Any]) -> list[Path]:
     """``plots/<dataset>.png`` (every method at the smallest stride over the ground truth) and
-    ``plots/t_rel.png`` (drift per dataset and method); a dataset that cannot be opened here gets its
-    overlay without ground truth."""
+    ``plots/t_rel.png`` (drift per dataset and method). A dataset that cannot be opened here gets its
+    overlay without ground truth, and without the trajectories written in its camera frame."""
     from vcr_odom.plots import plot_trajectories
 
     folder = suite_folder / "plots"
@@ -178,8 +180,6 @@ def write_plots(suite_folder: Path, rows: Sequence[dict[str, Any]], datasets: di
                     f"{row['method']} ({row['status']})" if row["status"] != "complete" else row["method"]
                 ] = poses
                 if gt is None and sequence is not None and sequence.gt_poses is not None:
-                    from vcr_odom.geometry import normalise_to_first
-
                     gt = normalise_to_first(sequence.gt_poses[frames])
         if trajectories:
             written.append(
@@ -192,8 +192,6 @@ def write_plots(suite_folder: Path, rows: Sequence[dict[str, Any]], datasets: di
 
 
 def _open_quietly(entry: Any, stride: int) -> Any:
-    from vcr_odom.errors import VcrOdomError
-
     try:
         return entry.selection(stride).open()
     except (VcrOdomError, OSError):
@@ -202,10 +200,6 @@ def _open_quietly(entry: Any, stride: int) -> Any:
 
 def _lidar_trajectory(folder: Path, sequence: Any) -> tuple[np.ndarray | None, list[int]]:
     """The attempt's poses in the LiDAR frame (its KITTI file is in the camera frame where calibrated)."""
-    from vcr_odom.errors import VcrOdomError
-    from vcr_odom.geometry import camera_to_lidar_poses
-    from vcr_odom.io import read_kitti_poses
-
     try:
         poses = read_kitti_poses(folder / "trajectory_kitti.txt")
         frames = json.loads((folder / "frames.json").read_text(encoding="utf-8"))
