@@ -64,7 +64,7 @@ FIELDS = MapSettings.model_fields
     default=FIELDS["revisit_radius"].default,
     show_default=True,
     help="A place counts as revisited within this many metres, plus the drift the odometry may have "
-    "gathered since (3 %% of the path between the visits, 1.5 m at least).",
+    "gathered since (3 % of the path between the visits, 1.5 m at least).",
 )
 @click.option(
     "--min-loop-path",
@@ -79,6 +79,14 @@ FIELDS = MapSettings.model_fields
     flag_value=False,
     default=True,
     help="Skip loop closure: the odometry and its map only (for comparison).",
+)
+@click.option(
+    "--ground-up/--no-ground-up",
+    default=FIELDS["ground_up"].default,
+    show_default=True,
+    help="Hold each node's tilt to the ground seen in its scan wherever the odometry's tilt drifted "
+    "(more than 1.5 deg from it at 10 % of the nodes), which loops cannot see; turn off where the "
+    "ground is far from level (steep hills, stairs).",
 )
 @initial_guess_option
 @vcr_options

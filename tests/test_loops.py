@@ -176,6 +176,7 @@ def test_map_without_revisits_keeps_the_odometry_and_writes_every_file(
     assert marker["status"] == "complete" and marker["frames_done"] == 8
     metrics = json.loads((folder / "metrics.json").read_text())
     assert metrics["loops"]["accepted"] == 0 and metrics["memory"]["nodes"] == len(loops["nodes"])
+    assert metrics["loops"]["ground_up"] == {"used": False}, "no loop: no graph, no up priors"
     assert metrics["odometry"]["ate_rpe"] == metrics["ate_rpe"]
 
 

@@ -1,14 +1,21 @@
-"""The pose graph: the nodes' odometry chain plus the accepted loops, optimised with open3d, loops
-weighted by a Cauchy kernel; then every frame moved with the nodes around it.
+"""The pose graph: the nodes' odometry chain, the accepted loops and each node's measured up
+direction, optimised with open3d; loops and up directions weighted by a Cauchy kernel; then every
+frame moved with the nodes around it.
 
 Why a robust kernel on top of the loops' own checks: each check sees one loop; only the graph sees
 whether the loops agree with each other. A loop whose residual stays large once the others pull the
 trajectory into place is down-weighted round by round (iteratively re-weighted least squares), and
 one that ends with a weight below :data:`DROP_WEIGHT` is dropped and named in ``loops.json``.
+
+Why up directions (:mod:`~vcr_odom.loops.ground`): loops cannot see a tilt that drifted between them,
+since a lobe driven in a tilted plane still meets itself at its ends. Each node's ground normal holds
+its roll and pitch to the world's up, loosely (:data:`ATTITUDE_SIGMA_DEG`: roads slope); its heading
+and position stay free. They act only with loops: without any, the odometry is returned untouched.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -22,19 +29,63 @@ from vcr_odom.loops.drift import DriftModel
 from vcr_odom.loops.nodes import Node
 
 CAUCHY_SCALE = 3.0
-"""Residual (in standard deviations, over the edge's 6 dimensions) where a loop's weight halves."""
+"""Residual (in standard deviations, over the edge's dimensions) where an edge's weight halves."""
 ROUNDS = 5
 DROP_WEIGHT = 0.1
+ATTITUDE_SIGMA_DEG = 2.0
+"""How far a node's measured up may be from the truth: road slopes (synthetic drives up to ~2 deg,
+the KITTI sample 0.6) plus the fit's noise. Tuned on synthetic seeds 532-534 (0.5-5 deg tried)."""
+UP_REFERENCE_M = 30.0
+"""The world's up is the mean measured up of the nodes within this path of the start, where the
+odometry's tilt has not drifted yet (one scan's fit alone can be a degree off)."""
+TILT_AGREEMENT_DEG = 1.5
+"""Where the odometry's up already agrees with the measured one this well (90 % of nodes), the priors
+are left out: the ground is only as level as the road, so they could add nothing but its slopes (on a
+64-beam loop whose tilt had not drifted they doubled the map's error; tuning seeds 532-537)."""
 
 
 @dataclass(frozen=True)
-class LoopEdge:
-    """A loop between nodes ``source`` and ``target``: ``transform`` is ``T_target_source``."""
+class GraphEdge:
+    """A constraint ``T_target_source`` between nodes ``source`` and ``target``, with its information
+    (6x6, rotation first as open3d orders it) over ``dof`` dimensions."""
 
     source: int
     target: int
     transform: Transform
     information: NDArray[np.float64]
+    dof: int = 6
+
+
+@dataclass(frozen=True)
+class LoopEdge(GraphEdge):
+    """A loop between nodes ``source`` and ``target``: ``transform`` is ``T_target_source``."""
+
+
+@dataclass(frozen=True)
+class AttitudePrior(GraphEdge):
+    """Node ``source``'s roll and pitch held to the world's up: an edge to node 0 (the fixed first
+    node) whose transform is the node's pose turned so that its ground normal points up, with
+    information only about the two axes across that normal."""
+
+    dof: int = 2
+
+
+@dataclass(frozen=True)
+class UpPriors:
+    """The up directions the graph was given: ``edges`` (empty when left out), and why: the odometry's
+    disagreement with the measured up (90th percentile over the nodes whose ground was seen)."""
+
+    edges: list[AttitudePrior]
+    tilt_p90_deg: float | None
+    nodes_with_ground: int
+
+    def to_dict(self) -> dict[str, object]:
+        return {
+            "priors": len(self.edges),
+            "nodes_with_ground": self.nodes_with_ground,
+            "odometry_tilt_p90_deg": None if self.tilt_p90_deg is None else round(self.tilt_p90_deg, 3),
+            "used": bool(self.edges),
+        }
 
 
 @dataclass
@@ -42,6 +93,49 @@ class GraphResult:
     node_poses: NDArray[np.float64]
     weights: list[float]
     kept: list[bool]
+    up: UpPriors | None = None
+    up_dropped: int = 0
+
+
+def up_priors(nodes: Sequence[Node], sigma_deg: float = ATTITUDE_SIGMA_DEG) -> UpPriors:
+    """One prior per node after the first whose ground was seen, where the odometry's tilt disagrees
+    with the ground beyond :data:`TILT_AGREEMENT_DEG`; none when the start saw no ground."""
+    seen = [
+        (k, node.pose[:3, :3] @ node.ground, node) for k, node in enumerate(nodes) if node.ground is not None
+    ]
+    reference = [world for _, world, node in seen if node.path_m <= UP_REFERENCE_M]
+    if not reference or sigma_deg <= 0:
+        return UpPriors([], None, len(seen))
+    up = np.mean(reference, axis=0)
+    up /= np.linalg.norm(up)
+    tilt_p90 = float(
+        np.percentile([math.degrees(math.acos(min(1.0, float(w @ up)))) for _, w, _ in seen], 90)
+    )
+    if tilt_p90 <= TILT_AGREEMENT_DEG:
+        return UpPriors([], tilt_p90, len(seen))
+    first_inverse = invert(nodes[0].pose)
+    weight = math.radians(sigma_deg) ** -2
+    priors = []
+    for k, world, node in seen:
+        if k == 0:
+            continue
+        assert node.ground is not None
+        wanted = node.pose.copy()
+        wanted[:3, :3] = _turn_onto(world, up) @ node.pose[:3, :3]
+        information = np.zeros((6, 6))
+        information[:3, :3] = weight * (np.eye(3) - np.outer(node.ground, node.ground))
+        priors.append(AttitudePrior(k, 0, first_inverse @ wanted, information))
+    return UpPriors(priors, tilt_p90, len(seen))
+
+
+def _turn_onto(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The smallest rotation taking direction ``a`` onto ``b``."""
+    a, b = a / np.linalg.norm(a), b / np.linalg.norm(b)
+    axis = np.cross(a, b)
+    sine = float(np.linalg.norm(axis))
+    if sine < 1e-12:
+        return np.eye(3)
+    return Rotation.from_rotvec(axis / sine * math.atan2(sine, float(a @ b))).as_matrix()
 
 
 def _odometry_information(drift: DriftModel, motion: Transform) -> NDArray[np.float64]:
@@ -49,39 +143,46 @@ def _odometry_information(drift: DriftModel, motion: Transform) -> NDArray[np.fl
     return np.diag([sigma_r**-2] * 3 + [sigma_t**-2] * 3)
 
 
-def _residual_chi2(poses: NDArray[np.float64], loop: LoopEdge) -> float:
-    """``r^T I r`` of a loop under ``poses``, ``r`` the twist (rotation vector, translation) of the
-    disagreement between the loop and the poses."""
-    error = invert(loop.transform) @ invert(poses[loop.target]) @ poses[loop.source]
+def _residual_chi2(poses: NDArray[np.float64], edge: GraphEdge) -> float:
+    """``r^T I r`` of an edge under ``poses``, ``r`` the twist (rotation vector, translation) of the
+    disagreement between the edge and the poses."""
+    error = invert(edge.transform) @ invert(poses[edge.target]) @ poses[edge.source]
     twist = np.concatenate([Rotation.from_matrix(error[:3, :3]).as_rotvec(), error[:3, 3]])
-    return float(twist @ loop.information @ twist)
+    return float(twist @ edge.information @ twist)
 
 
 def optimise(
-    nodes: Sequence[Node], loops: Sequence[LoopEdge], drift: DriftModel | None = None
+    nodes: Sequence[Node],
+    loops: Sequence[LoopEdge],
+    drift: DriftModel | None = None,
+    attitude_sigma_deg: float = ATTITUDE_SIGMA_DEG,
 ) -> GraphResult:
-    """Node poses after optimisation; without loops, the odometry's, untouched."""
+    """Node poses after optimisation; without loops, the odometry's, untouched.
+    ``attitude_sigma_deg``: the up directions' weight (0 leaves them out)."""
     drift = drift or DriftModel()
     odometry = np.stack([node.pose for node in nodes])
     if not loops:
         return GraphResult(odometry.copy(), [], [])
-    weights = [1.0] * len(loops)
+    up = up_priors(nodes, attitude_sigma_deg)
+    edges: list[GraphEdge] = [*loops, *up.edges]
+    weights = [1.0] * len(edges)
     poses = odometry
     for _ in range(ROUNDS):
-        poses = _solve(odometry, loops, weights, drift)
-        chi2 = [_residual_chi2(poses, loop) for loop in loops]
-        new = [1.0 / (1.0 + c / (6.0 * CAUCHY_SCALE**2)) for c in chi2]
+        poses = _solve(odometry, edges, weights, drift)
+        chi2 = [_residual_chi2(poses, edge) for edge in edges]
+        new = [1.0 / (1.0 + c / (edge.dof * CAUCHY_SCALE**2)) for c, edge in zip(chi2, edges, strict=True)]
         if np.allclose(new, weights, atol=1e-3):
             break
         weights = new
     kept = [w >= DROP_WEIGHT for w in weights]
     if not all(kept):
-        poses = _solve(odometry, loops, [w if k else 0.0 for w, k in zip(weights, kept, strict=True)], drift)
-    return GraphResult(poses, weights, kept)
+        poses = _solve(odometry, edges, [w if k else 0.0 for w, k in zip(weights, kept, strict=True)], drift)
+    n = len(loops)
+    return GraphResult(poses, weights[:n], kept[:n], up, kept[n:].count(False))
 
 
 def _solve(
-    odometry: NDArray[np.float64], loops: Sequence[LoopEdge], weights: Sequence[float], drift: DriftModel
+    odometry: NDArray[np.float64], loops: Sequence[GraphEdge], weights: Sequence[float], drift: DriftModel
 ) -> NDArray[np.float64]:
     registration = o3d.pipelines.registration
     graph = registration.PoseGraph()

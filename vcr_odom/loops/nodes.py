@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 
 from vcr_odom.data.base import Points
 from vcr_odom.geometry import Transform, invert, rotation_angle
+from vcr_odom.loops.ground import ground_normal
 from vcr_odom.registration.open3d_icp import prepare_cloud
 
 NODE_SPACING_M = 3.0
@@ -33,17 +34,19 @@ CLOUD_INPUT_POINTS = 30_000
 @dataclass
 class Node:
     """One keyframe: ``position`` in the run's frame list, ``pose`` the odometry's (frame 0 world),
-    ``path_m`` the distance driven from the first frame, ``cloud`` the coarse voxel cloud (float32 xyz)."""
+    ``path_m`` the distance driven from the first frame, ``cloud`` the coarse voxel cloud (float32 xyz),
+    ``ground`` the ground's upward normal in the node's frame (None where none was seen)."""
 
     position: int
     frame_index: int
     pose: Transform
     path_m: float
     cloud: NDArray[np.float32]
+    ground: NDArray[np.float64] | None = None
 
     @property
     def nbytes(self) -> int:
-        return int(self.cloud.nbytes + self.pose.nbytes)
+        return int(self.cloud.nbytes + self.pose.nbytes + (0 if self.ground is None else self.ground.nbytes))
 
 
 def voxel_cloud(
@@ -110,5 +113,6 @@ class NodeRecorder:
                 pose=self.poses[position],
                 path_m=self.path[position],
                 cloud=voxel_cloud(points),
+                ground=ground_normal(points),
             )
         )

@@ -34,7 +34,7 @@ from vcr_odom.loops.candidates import (
     find_candidates,
 )
 from vcr_odom.loops.drift import DriftModel
-from vcr_odom.loops.graph import LoopEdge, correct_frames, optimise
+from vcr_odom.loops.graph import ATTITUDE_SIGMA_DEG, LoopEdge, correct_frames, optimise
 from vcr_odom.loops.nodes import NODE_SPACING_DEG, NODE_SPACING_M, Node, NodeRecorder
 from vcr_odom.loops.verify import LoopDecision, LoopVerifier
 from vcr_odom.mapping import VoxelMap
@@ -70,6 +70,11 @@ class LoopOptions(Settings):
     min_loop_path: float = Field(default=MIN_LOOP_PATH_M, gt=0)
     attempt_spacing: float = Field(default=ATTEMPT_SPACING_M, ge=0)
     loops: bool = Field(default=True, description="False: the odometry and its map only (a baseline).")
+    ground_up: bool = Field(
+        default=True,
+        description="Hold each node's tilt to its scan's ground where the odometry's tilt drifted "
+        "(False: loops alone; for ground that is not near level, e.g. steep hills).",
+    )
     map_voxel: float = Field(default=0.5, ge=0.05)
 
 
@@ -194,7 +199,7 @@ def map_and_save(
                 kept = None
             return MapOutcome(kept, sequence, run, run.poses, [], None, None, phase.seconds)
         nodes = recorder.finish()
-        decisions, poses = _close_loops(options, network, nodes, run, phase)
+        decisions, poses, up = _close_loops(options, network, nodes, run, phase)
         voxel_map = _map_from_nodes(sequence, nodes, poses, options.map_voxel, phase)
     except BaseException as error:
         checkpoints.save(f"{interruption_reason(error)} (after {checkpoints.frames_done} odometry frames)")
@@ -221,7 +226,7 @@ def map_and_save(
             unit / "metrics.json",
             {
                 "run": run_summary(run),
-                "loops": _loop_summary(decisions),
+                "loops": _loop_summary(decisions) | {"ground_up": up},
                 "seconds": phase.seconds,
                 "memory": memory,
                 **(report.to_dict() if report is not None else {"ground_truth": None}),
@@ -281,9 +286,9 @@ def _close_loops(
     nodes: list[Node],
     run: OdometryRun,
     phase: _Phases,
-) -> tuple[list[LoopDecision], np.ndarray]:
+) -> tuple[list[LoopDecision], np.ndarray, dict[str, Any]]:
     """Candidates, verification and the graph: the decisions (a loop the graph dropped is no longer
-    accepted) and every frame's pose."""
+    accepted), every frame's pose, and what the graph made of the ground's up directions."""
     drift = DriftModel()
     started = time.perf_counter()
     decisions: list[LoopDecision] = []
@@ -302,7 +307,7 @@ def _close_loops(
         LoopEdge(d.candidate.source, d.candidate.target, d.measured, d.information)
         for d in _accepted(decisions)
     ]
-    graph = optimise(nodes, edges, drift)
+    graph = optimise(nodes, edges, drift, ATTITUDE_SIGMA_DEG if settings.ground_up else 0.0)
     for decision, kept, weight in zip(_accepted(decisions), graph.kept, graph.weights, strict=True):
         decision.scores["graph_weight"] = round(weight, 4)
         if not kept:
@@ -314,7 +319,8 @@ def _close_loops(
     else:
         poses = run.poses.copy()
     phase.seconds["graph"] = time.perf_counter() - started
-    return decisions, poses
+    up = {"used": False} if graph.up is None else graph.up.to_dict() | {"dropped": graph.up_dropped}
+    return decisions, poses, up
 
 
 def _map_from_nodes(
