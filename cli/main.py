@@ -17,7 +17,6 @@ from typing import TYPE_CHECKING, Any
 
 from vcr_odom.stop_signals import (  # also importable from here, as before
     STOP_SIGNALS,
-    _stopping,
     signal_label,
     stop_on_signals,
     stopping_signal,
@@ -38,10 +37,9 @@ def main() -> None:
             sys.stderr.write(f"Interrupted ({signal_label(signum)}) while starting; nothing was written.\n")
             sys.exit(128 + signum)
         group(prog_name="vcr-odom")
-    finally:
-        if _stopping:  # done: ignored from here, or Python's exit (which restores the defaults) dies of one
-            for signum in STOP_SIGNALS:
-                signal.signal(signum, signal.SIG_IGN)
+    finally:  # done (or stopped and written): a signal from here on would only interrupt Python's exit
+        for signum in STOP_SIGNALS:  # (a traceback from an exit handler, or a death by the signal)
+            signal.signal(signum, signal.SIG_IGN)
 
 
 @cache

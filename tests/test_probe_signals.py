@@ -183,6 +183,42 @@ def test_an_interrupt_while_starting_exits_quietly_with_its_code(
     assert not results.exists()
 
 
+SIGNAL_WHILE_EXITING = """
+import atexit, os, signal, sys
+signum = int(sys.argv.pop(1))
+atexit.register(lambda: os.kill(os.getpid(), signum))
+from vcr_odom.cli.main import main
+main()
+"""
+"""The entry point sending itself a signal while Python exits, after the command finished."""
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
+def test_a_signal_after_the_command_finished_changes_nothing(
+    data_root: Path, tmp_path: Path, signum: int
+) -> None:
+    results = tmp_path / "results"
+    process = start(
+        SIGNAL_WHILE_EXITING,
+        int(signum),
+        "run",
+        "--data-root",
+        data_root,
+        "--seq",
+        "00",
+        "--method",
+        "icp",
+        "--frames",
+        "0:4",
+        "--results-dir",
+        results,
+    )
+    _, err = process.communicate(timeout=120)
+    assert process.returncode == 0, err
+    assert "Traceback" not in err and "Exception ignored" not in err, err
+    assert read_marker(the_folder(results))["status"] == "complete"
+
+
 def test_the_console_script_is_the_entry_point_that_handles_signals_first() -> None:
     project = tomllib.loads((REPOSITORY / "pyproject.toml").read_text())
     assert project["project"]["scripts"]["vcr-odom"] == "vcr_odom.cli.main:main"
