@@ -1,5 +1,8 @@
 """File formats round-trip, bad files are named in errors, and writes are atomic."""
 
+import os
+import threading
+
 import numpy as np
 import pytest
 from evo.tools import file_interface
@@ -127,3 +130,45 @@ def test_a_file_that_is_not_utf8_is_a_data_error_naming_it(tmp_path, reader) -> 
     path.write_bytes("P0: 1 0 0\nTr: caf\xe9\n".encode("latin-1"))
     with pytest.raises(DataError, match=r"latin1\.txt:2: not UTF-8 text"):
         reader(path)
+
+
+def test_an_output_that_is_a_link_updates_what_it_points_at_and_stays_a_link(tmp_path) -> None:
+    target = tmp_path / "real.txt"
+    target.write_text("old")
+    link = tmp_path / "link.txt"
+    link.symlink_to(target)
+    io.atomic_write_text(link, "new")
+    assert link.is_symlink() and target.read_text() == "new"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["link.txt", "real.txt"], "no temporary left"
+
+
+def test_an_output_that_is_a_fifo_is_written_into_not_replaced(tmp_path) -> None:
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    received: list[bytes] = []
+    reader = threading.Thread(target=lambda: received.append(fifo.read_bytes()))
+    reader.start()
+    io.atomic_write_text(fifo, "through the pipe")
+    reader.join(timeout=10)
+    assert received == [b"through the pipe"]
+    assert fifo.is_fifo(), "still a FIFO, not a regular file that no reader sees"
+
+
+def test_a_plot_and_a_map_written_to_a_link_keep_the_link(tmp_path) -> None:
+    from vcr_odom.mapping import VoxelMap
+    from vcr_odom.plots import plot_trajectories
+
+    voxel_map = VoxelMap(voxel_size=0.5)
+    voxel_map.add(np.random.default_rng(0).uniform(-10, 10, (500, 4)).astype(np.float32), np.eye(4))
+
+    poses = np.stack([make_transform(np.eye(3), [float(k), 0.0, 0.0]) for k in range(3)])
+    for name, write in (
+        ("plot.png", lambda path: plot_trajectories(path, {"run": poses})),
+        ("map.ply", voxel_map.save),
+    ):
+        target = tmp_path / f"real-{name}"
+        target.write_bytes(b"old")
+        link = tmp_path / name
+        link.symlink_to(target)
+        write(link)
+        assert link.is_symlink() and target.stat().st_size > 100, name

@@ -8,6 +8,10 @@ from __future__ import annotations
 import os
 import secrets
 import shutil
+import stat
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -25,17 +29,44 @@ def temporary_sibling(path: str | os.PathLike[str]) -> Path:
     return path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
 
 
+@contextmanager
+def replacing(path: str | os.PathLike[str], suffix: str = "") -> Iterator[Path]:
+    """A temporary file (name ending in ``suffix``) to write ``path``'s new content into, put in place
+    when the block succeeds and removed either way, so ``path`` is never left half-written.
+
+    In place means: renamed onto ``path``; onto what ``path`` points at if it is a symbolic link (the
+    link stays a link, as ``>`` in a shell keeps it); copied into it if it is a FIFO or a device such
+    as ``/dev/stdout``, which a rename would replace by a regular file that no reader sees."""
+    path = Path(path)
+    stream = _is_stream(path)
+    target = Path(os.path.realpath(path)) if path.is_symlink() and not stream else path
+    temporary = temporary_sibling(Path(tempfile.gettempdir()) / path.name if stream else target)
+    temporary = temporary.with_name(temporary.name + suffix)
+    try:
+        yield temporary
+        if stream:
+            with open(temporary, "rb") as source, open(path, "wb") as sink:
+                shutil.copyfileobj(source, sink)
+        else:
+            os.replace(temporary, target)
+    finally:
+        temporary.unlink(missing_ok=True)
+
+
+def _is_stream(path: Path) -> bool:
+    try:
+        mode = os.stat(path).st_mode  # follows links: /dev/stdout -> the pipe or terminal behind it
+    except OSError:
+        return False
+    return stat.S_ISFIFO(mode) or stat.S_ISCHR(mode) or stat.S_ISSOCK(mode)
+
+
 def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> Path:
-    """Write ``data`` to a temporary file beside ``path``, then rename it into place."""
+    """Write ``data`` to ``path`` through :func:`replacing` (never half-written)."""
     path = Path(path)
     try:
-        temporary = temporary_sibling(path)
-        try:
-            with open(temporary, "xb") as handle:
-                handle.write(data)
-            os.replace(temporary, path)
-        finally:
-            temporary.unlink(missing_ok=True)
+        with replacing(path) as temporary, open(temporary, "xb") as handle:
+            handle.write(data)
     except OSError as error:  # a full disk, a quota, a read-only mount: one line naming the file
         raise DataError(f"{path}: could not write: {describe_os_error(error)}") from error
     return path
@@ -46,9 +77,12 @@ def describe_os_error(error: OSError) -> str:
     return error.strerror or str(error)
 
 
-def check_free_space(path: str | os.PathLike[str], needed: int, what: str) -> None:
+def check_free_space(
+    path: str | os.PathLike[str], needed: int, what: str, *, named: str | os.PathLike[str] | None = None
+) -> None:
     """DataError, before writing ``what`` (about ``needed`` bytes) at ``path``, where its file system
-    has less free space: a full disk found after the work would waste it, or cut a file short."""
+    has less free space: a full disk found after the work would waste it, or cut a file short.
+    ``named``: the file the message names where ``path`` is a temporary stand-in for it."""
     folder = Path(path).absolute().parent
     while not folder.exists() and folder.parent != folder:
         folder = folder.parent
@@ -58,7 +92,7 @@ def check_free_space(path: str | os.PathLike[str], needed: int, what: str) -> No
         return  # nothing to measure with (an odd file system): the write itself still checks
     if free < needed:
         raise DataError(
-            f"{path}: not enough free space for {what} (needs about {_megabytes(needed)}, "
+            f"{named or path}: not enough free space for {what} (needs about {_megabytes(needed)}, "
             f"{_megabytes(free)} free on {folder})"
         )
 

@@ -23,7 +23,7 @@ import open3d as o3d
 from numpy.typing import ArrayLike, NDArray
 
 from vcr_odom.errors import ConfigError, DataError
-from vcr_odom.io import check_free_space, temporary_sibling
+from vcr_odom.io import check_free_space, replacing
 from vcr_odom.results import check_output_file
 
 MAP_SUFFIXES = (".ply", ".pcd")
@@ -158,18 +158,15 @@ class VoxelMap:
         cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(self._xyz))
         grey = np.clip(self._intensity, 0.0, 1.0)
         cloud.colors = o3d.utility.Vector3dVector(np.repeat(grey[:, None], 3, axis=1))
-        temporary = temporary_sibling(target)
-        temporary = temporary.with_name(temporary.name + suffix)
-        check_free_space(target, _MAP_HEADER_BYTES + _MAP_POINT_BYTES * len(self._xyz), "the map")
         try:
-            if not o3d.io.write_point_cloud(str(temporary), cloud, write_ascii=False, compressed=False):
-                raise DataError(f"{target}: open3d could not write the map; nothing was written there")
-            _check_written(temporary, target, len(self._xyz))
-            os.replace(temporary, target)
+            with replacing(target, suffix) as temporary:
+                needed = _MAP_HEADER_BYTES + _MAP_POINT_BYTES * len(self._xyz)
+                check_free_space(temporary, needed, "the map", named=target)
+                if not o3d.io.write_point_cloud(str(temporary), cloud, write_ascii=False, compressed=False):
+                    raise DataError(f"{target}: open3d could not write the map; nothing was written there")
+                _check_written(temporary, target, len(self._xyz))
         except OSError as error:
             raise DataError(f"{target}: could not write the map: {error.strerror or error}") from error
-        finally:
-            temporary.unlink(missing_ok=True)
         return target
 
     # ------------------------------------------------------------------------------------------

@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from vcr_odom.errors import DataError
-from vcr_odom.io import describe_os_error, temporary_sibling
+from vcr_odom.io import describe_os_error, replacing
 
 _SURROGATES = re.compile("[\ud800-\udfff]")
 
@@ -32,12 +32,8 @@ def _save(figure: plt.Figure, path: str | os.PathLike[str]) -> Path:
     write (a full disk) is a DataError naming the file, not a traceback from deep in PIL."""
     path = Path(path)
     try:
-        temporary = temporary_sibling(path)
-        try:
+        with replacing(path) as temporary:
             figure.savefig(temporary, dpi=130, bbox_inches="tight", format="png")
-            os.replace(temporary, path)
-        finally:
-            temporary.unlink(missing_ok=True)
     except OSError as error:
         raise DataError(f"{path}: could not write: {describe_os_error(error)}") from error
     finally:
