@@ -5,8 +5,10 @@ real and synthetic data that are fine are still read as before."""
 from __future__ import annotations
 
 import gc
+import json
 import os
 import shutil
+import subprocess
 import sys
 import warnings
 from pathlib import Path
@@ -162,6 +164,31 @@ def test_a_bin_of_random_bytes_is_refused_naming_it(tmp_path, scan):
     assert nothing_written(results)
 
 
+def test_a_bin_of_random_bytes_mid_run_keeps_the_frames_before_it_marked_partial(
+    tmp_path, small_synthetic_root
+):
+    velodyne = sorted((small_synthetic_root / "sequences/00/velodyne").glob("*.bin"))
+    assert len(velodyne) == 8
+    folder = tmp_path / "scans"
+    folder.mkdir()
+    for path in velodyne:
+        shutil.copy(path, folder / path.name)
+    broken = folder / "000004.bin"  # frame 4 of 8: neither the first nor the last, read only when reached
+    broken.write_bytes(np.random.default_rng(1).bytes(broken.stat().st_size))
+    results = tmp_path / "results"
+    result = invoke("run", "--folder", folder, "--method", "icp", "--results-dir", results)
+    assert_refused(result, EXIT_ERROR, "frame 4", broken, "not a LiDAR scan")
+    (run,) = [path for path in results.iterdir() if not path.is_symlink() and not path.name.startswith(".")]
+    assert (results / "latest").resolve() == run.resolve()
+    marker = json.loads((run / "result.json").read_text())
+    assert marker["status"] == "partial" and marker["frames_done"] == 4 and marker["frames_selected"] == 8
+    assert "000004.bin" in marker["reason"]
+    kitti = np.loadtxt(run / "trajectory_kitti.txt", ndmin=2)
+    assert kitti.shape == (4, 12) and np.isfinite(kitti).all()
+    assert len((run / "trajectory_tum.txt").read_text().splitlines()) == 4
+    assert json.loads((run / "frames.json").read_text())["frame_indices"] == [0, 1, 2, 3]
+
+
 # -- 3. and 5. entries named like scans that are not scan files -------------------------------------
 
 
@@ -182,7 +209,7 @@ def break_entry(folder: Path, kind: str) -> Path:
     [
         ("broken-link", "broken symbolic link"),
         ("link-loop", "symbolic link loop"),
-        ("folder", "a folder"),
+        ("folder", "a folder, not a scan file"),
     ],
 )
 def test_an_entry_named_like_a_scan_that_is_not_one_is_refused_never_skipped(tmp_path, scan, kind, said):
@@ -191,6 +218,10 @@ def test_an_entry_named_like_a_scan_that_is_not_one_is_refused_never_skipped(tmp
     with pytest.raises(DataError) as error:
         FolderSequence(folder)
     assert str(entry) in str(error.value) and said in str(error.value)
+    results = tmp_path / "results"
+    result = invoke("run", "--folder", folder, "--method", "icp", "--results-dir", results)
+    assert_refused(result, EXIT_ERROR, entry, said)  # skipped, it would run 5 frames and exit 0
+    assert nothing_written(results)
     scan_folder(tmp_path / "kitti/sequences/00/velodyne", [scan[::20]] * 6)
     entry = break_entry(tmp_path / "kitti/sequences/00/velodyne", kind)
     with pytest.raises(DataError, match=said):
@@ -311,6 +342,27 @@ def test_a_broken_bag_prints_no_traceback_when_collected(tmp_path, monkeypatch):
             KissLoaderSequence("rosbag", tmp_path / name)
         gc.collect()
     assert raised == []
+
+
+@pytest.mark.parametrize("content", [b"", np.random.default_rng(2).bytes(4096)], ids=["empty", "junk"])
+def test_run_on_a_broken_bag_exits_1_naming_it_with_no_traceback(tmp_path, content):
+    """The console script itself: "Exception ignored" is printed while Python collects or exits."""
+    pytest.importorskip("rosbags")
+    bag = tmp_path / "drive.bag"
+    bag.write_bytes(content)
+    results = tmp_path / "results"
+    script = Path(sys.executable).with_name("vcr-odom")
+    command = [str(script)] if script.is_file() else [sys.executable, "-m", "vcr_odom.cli.main"]
+    done = subprocess.run(
+        [*command, "run", "--dataloader", "rosbag", "--data", str(bag), "--method", "icp",
+         "--results-dir", str(results)],
+        capture_output=True, text=True, timeout=120, env={**os.environ, "OMP_NUM_THREADS": "1"},
+    )  # fmt: skip
+    output = done.stdout + done.stderr
+    assert done.returncode == EXIT_ERROR, output
+    assert f"could not open {bag}" in output
+    assert "Traceback" not in output and "Exception ignored" not in output, output
+    assert nothing_written(results) and bag.read_bytes() == content
 
 
 # -- 9. what a killed synth leaves behind -----------------------------------------------------------

@@ -90,6 +90,15 @@ def pose_lines(poses: np.ndarray) -> list[str]:
     return io.format_kitti_poses(poses).splitlines()
 
 
+def random_scans(folder: Path, count: int) -> Path:
+    """``count`` small scans of uniform random points: where the frames' content does not matter."""
+    folder.mkdir()
+    rng = np.random.default_rng(0)
+    for index in range(count):
+        rng.uniform(-20, 20, size=(50, 4)).astype(np.float32).tofile(folder / f"{index:06d}.bin")
+    return folder
+
+
 # -- 1. mirrored and non-orthonormal rotations --------------------------------------------------------
 
 
@@ -129,6 +138,17 @@ def test_a_pose_that_is_not_rigid_is_refused_naming_the_file_and_line(tmp_path, 
     result = invoke("eval", "--gt", files["--gt"], "--est", files["--est"], "--json", report)
     assert_fails(result, EXIT_ERROR, f"{bad}: pose 7 (line 8)", why, "expected a rotation")
     assert not report.exists()
+
+
+def test_run_with_mirrored_ground_truth_exits_1_naming_the_line_before_writing_anything(tmp_path):
+    poses = drive(6)
+    poses[3] = mirrored(poses[3])
+    gt = io.write_kitti_poses(tmp_path / "gt.txt", poses)
+    scans = random_scans(tmp_path / "scans", 6)
+    results = tmp_path / "results"
+    result = invoke("run", "--folder", scans, "--poses", gt, "--method", "icp", "--results-dir", results)
+    assert_fails(result, EXIT_ERROR, f"{gt}: pose 4 (line 4)", "determinant -1")
+    assert not results.exists() or not list(results.iterdir())
 
 
 def test_printed_kitti_poses_still_read(tmp_path):
@@ -225,6 +245,11 @@ def test_one_nanosecond_steps_are_refused_naming_the_line(tmp_path):
     with pytest.raises(DataError, match=r"cannot be a frame period; expected seconds") as error:
         io.read_times(path)
     assert str(error.value).startswith(f"{path}:2:")
+    results = tmp_path / "results"
+    scans = random_scans(tmp_path / "scans", 10)
+    result = invoke("run", "--folder", scans, "--times", path, "--method", "icp", "--results-dir", results)
+    assert_fails(result, EXIT_ERROR, f"{path}:2:", "cannot be a frame period")
+    assert not results.exists() or not list(results.iterdir())
 
 
 def test_sensor_rates_and_keyframes_in_seconds_still_read(tmp_path):
@@ -239,11 +264,7 @@ def test_sensor_rates_and_keyframes_in_seconds_still_read(tmp_path):
 
 
 def test_run_with_millisecond_times_exits_1_before_writing_anything(tmp_path):
-    scans = tmp_path / "scans"
-    scans.mkdir()
-    rng = np.random.default_rng(0)
-    for index in range(4):
-        rng.uniform(-20, 20, size=(50, 4)).astype(np.float32).tofile(scans / f"{index:06d}.bin")
+    scans = random_scans(tmp_path / "scans", 4)
     times = tmp_path / "ms.txt"
     times.write_text("0\n100\n200\n300\n")
     results = tmp_path / "results"

@@ -439,16 +439,24 @@ def test_weights_no_training_produces_are_refused_at_load(
     assert str(path) in str(caught.value)
 
 
-def test_run_with_zero_weights_fails_in_one_line_before_any_folder(
-    small_synthetic_root: Path, tmp_path: Path
+@pytest.mark.parametrize(
+    ("name", "change", "expected"),
+    [
+        ("zero.safetensors", lambda _k, v: v * 0, "zero"),
+        ("huge.safetensors", lambda _k, v: v * 1e30, "corrupt or scaled"),  # finite, but no training's
+    ],
+    ids=["zero", "huge"],
+)
+def test_run_with_weights_no_training_produces_fails_in_one_line_before_any_folder(
+    small_synthetic_root: Path, tmp_path: Path, name: str, change: Any, expected: str
 ) -> None:
-    path = _shipped_scaled(tmp_path, "zero.safetensors", lambda _k, v: v * 0)
+    path = _shipped_scaled(tmp_path, name, change)
     results = tmp_path / "results"
     result = invoke(
-        "run", "--data-root", small_synthetic_root, "--weights", path, "--device", "cpu",
+        "run", "--data-root", small_synthetic_root, "--method", "vcr", "--weights", path, "--device", "cpu",
         "--results-dir", results,
     )  # fmt: skip
-    assert_fails(result, 1, path, "zero")
+    assert_fails(result, 1, path, expected)
     assert not results.exists()
 
 

@@ -161,3 +161,29 @@ def test_links_between_the_documents_reach_a_file_and_a_heading(document):
         if anchor:
             anchors = {slug(h) for h in re.findall(r"^#+ (.+)$", path.read_text(), flags=re.M)}
             assert anchor in anchors, f"{document.name}: no heading #{anchor} in {target[0]}"
+
+
+# -- the README ---------------------------------------------------------------------------------------
+
+README = ROOT / "README.md"
+SCHEME = re.compile(r"^[a-z][a-z0-9+.-]*:", flags=re.I)  # https:, mailto: (not checked here)
+
+
+def test_the_readme_is_short_keeps_its_two_commands_and_links_to_files_that_exist():
+    text = README.read_text()
+    assert len(text.splitlines()) <= 250
+    blocks = re.findall(r"^```(?:bash|sh)?\n(.*?)^```", text, flags=re.M | re.S)
+    commands = [
+        [line.split("#")[0].strip() for line in block.splitlines() if line.strip()] for block in blocks
+    ]
+    assert ["make demo", "make test"] in commands
+    assert {"demo", "test"} <= set(re.findall(r"^([\w-]+):", (ROOT / "Makefile").read_text(), flags=re.M))
+    relative = [link for link in re.findall(r"\]\(([^)\s]+)\)", text) if not SCHEME.match(link)]
+    assert relative
+    for link in relative:
+        target, _, anchor = link.partition("#")
+        path = README.parent / target if target else README
+        assert path.exists(), f"README.md links to missing {target}"
+        if anchor and path.suffix == ".md":
+            anchors = {slug(h) for h in re.findall(r"^#+ (.+)$", path.read_text(), flags=re.M)}
+            assert anchor in anchors, f"README.md: no heading #{anchor} in {target or 'README.md'}"

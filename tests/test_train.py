@@ -13,8 +13,10 @@ from pathlib import Path
 
 import pytest
 import torch
+from click.testing import CliRunner
 from torch.utils.data import Dataset
 
+from vcr_odom.cli.main import cli
 from vcr_odom.errors import ConfigError, DataError
 from vcr_odom.model import VcrConfig
 from vcr_odom.model.weights import load_weights, save_weights
@@ -299,7 +301,7 @@ class _RunsCode:
 
 
 def test_resume_refuses_a_checkpoint_that_would_run_code(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, small_synthetic_root: Path
 ) -> None:
     train(TINY, RandomPairs(2), RandomPairs(2), _config(tmp_path, epochs=1))
     state = torch.load(tmp_path / "last.pt", weights_only=False)
@@ -309,6 +311,22 @@ def test_resume_refuses_a_checkpoint_that_would_run_code(
     with pytest.raises(DataError, match=r"last\.pt: refused: the checkpoint holds objects other than"):
         train(TINY, RandomPairs(2), RandomPairs(2), _config(tmp_path, epochs=2), resume=True)
     assert not (tmp_path / "ran-code").exists()
+
+    # The command: a DataError exits 1 naming the file; the run's files are left as they were.
+    before = {path.name: path.read_bytes() for path in tmp_path.iterdir() if path.is_file()}
+    result = CliRunner().invoke(
+        cli,
+        [
+            "train", "--data-root", str(small_synthetic_root), "--seq", "00", "--protocol", "same-scan",
+            "--epochs", "2", "--device", "cpu", "--out", str(tmp_path), "--resume",
+        ],
+    )  # fmt: skip
+    assert result.exit_code == 1, result.output
+    assert f"{tmp_path / 'last.pt'}: refused" in result.output and "Traceback" not in result.output
+    assert not (tmp_path / "ran-code").exists()
+    assert {path.name: path.read_bytes() for path in tmp_path.iterdir() if path.is_file()} == before
+    torch.load(tmp_path / "last.pt", weights_only=False)  # the control: unpickled, the file does run code
+    assert (tmp_path / "ran-code").exists()
 
 
 def test_corrupt_checkpoint_is_a_data_error_naming_it(tmp_path: Path) -> None:
