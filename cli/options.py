@@ -35,8 +35,9 @@ class FriendlyGroup(click.Group):
             if isinstance(error, ConfigError):
                 failure.exit_code = EXIT_USAGE
             raise failure from error
-        except KeyboardInterrupt:
-            exit_interrupted(f"Interrupted ({interrupt_label()}).")
+        except KeyboardInterrupt as stopped:
+            note = getattr(stopped, "kept_note", "")
+            exit_interrupted(f"Interrupted ({interrupt_label()}){f'; {note}' if note else ''}.")
 
 
 def describe_loaders() -> str:

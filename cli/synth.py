@@ -8,7 +8,7 @@ import click
 
 from vcr_odom.cli.config_options import config_options
 from vcr_odom.cli.progress import EXIT_CODES_HELP, console, frame_progress
-from vcr_odom.results import check_output_folder
+from vcr_odom.results import check_output_folder, note_kept
 from vcr_odom.synth import (
     SCENE_STYLES,
     SENSOR_MODELS,
@@ -119,8 +119,16 @@ def synth(
         thin=thin,
     )
     sequence = SynthSequence(config)
-    with frame_progress(f"synth seed {seed}", len(sequence)) as advance:
-        written = write_sequence(sequence, out, seq, progress=advance)
+    try:
+        with frame_progress(f"synth seed {seed}", len(sequence)) as advance:
+            written = write_sequence(sequence, out, seq, progress=advance)
+    except KeyboardInterrupt as stopped:
+        target = Path(out) / "sequences" / seq
+        note_kept(
+            stopped,
+            f"{target} was not written" + (" (the one there is unchanged)" if target.exists() else ""),
+        )
+        raise
     kept = f" (keyframes of {written.generated})" if written.frames != written.generated else ""
     console.print(
         f"Wrote {written.frames} frames{kept} to {written.seq_dir} and poses to {written.poses_file}"

@@ -190,3 +190,14 @@ def test_bad_bin_in_folder_names_the_file(tmp_path):
     (tmp_path / "1.bin").write_bytes(b"\0" * 17)
     with pytest.raises(DataError, match=r"1\.bin.*17 bytes"):
         FolderSequence(tmp_path)
+
+
+def test_a_scan_without_returns_is_named_when_read(tmp_path):
+    write_bins(tmp_path, ["000000.bin", "000001.bin", "000002.bin"])
+    np.zeros((5000, 4), np.float32).tofile(tmp_path / "000001.bin")  # every return missing
+    sequence = quiet(tmp_path)
+    with pytest.warns(DataWarning, match=r"000001\.bin: no returns: all 5000 points are at the sensor"):
+        sequence.frame(1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        sequence.frame(2)

@@ -302,7 +302,7 @@ def test_a_stopped_comparison_marks_each_method_and_what_finished(data_root: Pat
 
     wait_for(process, second_method_going)
     process.send_signal(signal.SIGTERM)
-    _, err = process.communicate(timeout=60)
+    out, err = process.communicate(timeout=60)
     assert process.returncode == 143, err
     assert not unmarked, f"method folders seen without a marker: {unmarked}"
     assert checkpoints, "no comparison marker said that icp10 finished while icp ran"
@@ -316,3 +316,23 @@ def test_a_stopped_comparison_marks_each_method_and_what_finished(data_root: Pat
     assert agreeing_marker(folder / "icp10")["status"] == "complete"
     second = agreeing_marker(folder / "icp")
     assert second["status"] == "partial" and second["reason"] == "interrupted (SIGTERM) after 1 of 2 frames"
+    assert "partial result is kept in" in out + err and folder.name in out + err, (
+        "the line names what was kept"
+    )
+
+
+def test_an_interrupt_while_a_result_folder_is_made_leaves_none_and_says_so(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    rename = results_module._rename_to_free_name
+
+    def rename_then_interrupt(staging: Path, folder: Path) -> Path:
+        made = rename(staging, folder)
+        signal.raise_signal(signal.SIGINT)  # held until the folder is whole, then acts
+        return made
+
+    monkeypatch.setattr(results_module, "_rename_to_free_name", rename_then_interrupt)
+    with pytest.raises(KeyboardInterrupt) as stopped:
+        results_module.create_result_folder(tmp_path, "run_x", {}, frames_selected=3)
+    assert list(tmp_path.iterdir()) == [], "no folder left that says 'started' forever"
+    assert stopped.value.kept_note == "no result folder was kept"

@@ -127,13 +127,28 @@ def create_result_folder(
     root.mkdir(parents=True, exist_ok=True)
     _remove_abandoned_staging(root)
     stem = f"{datetime.now().strftime('%Y%m%d-%H%M%S')}_{_safe(label)}"
-    with deferred_interrupts():  # an interrupt after the rename would leave a folder nobody knows of
-        staging = _staged_folder(root, stem, config, frames_selected)
-        try:
-            return _rename_to_free_name(staging, root / stem)
-        except BaseException:
-            shutil.rmtree(staging, ignore_errors=True)
-            raise
+    folder: Path | None = None
+    try:
+        with deferred_interrupts():  # held until the folder is whole; acts when the block ends
+            staging = _staged_folder(root, stem, config, frames_selected)
+            try:
+                folder = _rename_to_free_name(staging, root / stem)
+            except BaseException:
+                shutil.rmtree(staging, ignore_errors=True)
+                raise
+    except BaseException as error:  # stopped while it was made: the caller never saw it, so nobody would
+        if folder is not None:  # remove it (a stray folder that says "started" forever)
+            remove_result_folder(folder)
+        note_kept(error, "no result folder was kept")
+        raise
+    return folder
+
+
+def note_kept(error: BaseException, note: str) -> None:
+    """Tell an interrupt what its command kept (``"the partial result is kept in ..."``), for the one
+    line the command line prints; the innermost note, which knows most, wins."""
+    if isinstance(error, KeyboardInterrupt) and not hasattr(error, "kept_note"):
+        error.kept_note = note  # type: ignore[attr-defined]
 
 
 def _rename_to_free_name(staging: Path, folder: Path) -> Path:

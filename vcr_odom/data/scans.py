@@ -136,6 +136,12 @@ def clean_points(points: NDArray[np.floating], source: str | os.PathLike[str]) -
         points = points[finite]
     if len(points) == 0:
         warnings.warn(f"{source}: empty frame (no valid points)", DataWarning, stacklevel=3)
+    elif not points[:, :3].any():  # organised clouds write a missing return as (0, 0, 0)
+        warnings.warn(
+            f"{source}: no returns: all {len(points)} points are at the sensor (0, 0, 0)",
+            DataWarning,
+            stacklevel=3,
+        )
     return np.ascontiguousarray(points, dtype=np.float32)
 
 

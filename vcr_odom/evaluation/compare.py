@@ -43,6 +43,7 @@ from vcr_odom.results import (
     create_result_folder,
     deferred_interrupts,
     interruption_reason,
+    note_kept,
     point_latest_at,
     remove_result_folder,
     result_unit,
@@ -178,8 +179,10 @@ def run_comparison(settings: CompareSettings, progress: ProgressFactory | None =
         with deferred_interrupts():  # a further interrupt waits until what finished is written
             if comparison.odometry or comparison.pairs:
                 publish_comparison(comparison, interruption_reason(error))
+                note_kept(error, f"what finished is kept in {folder} (result.json: partial)")
             else:
                 remove_result_folder(folder)
+                note_kept(error, "no method had finished; no result folder was kept")
         raise
     stopped = next(
         (o.run.interruption or "interrupted" for o in comparison.odometry if o.run.interrupted), ""

@@ -35,6 +35,7 @@ from vcr_odom.results import (
     deferred_interrupts,
     holds_trajectory,
     interruption_reason,
+    note_kept,
     point_latest_at,
     remove_result_folder,
     result_unit,
@@ -136,9 +137,11 @@ def run_sequence(settings: RunSettings, progress: ProgressFactory | None = None)
                 voxel_map=voxel_map,
                 on_saved=lambda: point_latest_at(settings.results_dir, folder),
             )
-    except BaseException:
+    except BaseException as error:
         if not holds_trajectory(folder):  # failed before its first frame: nothing worth keeping
             remove_result_folder(folder)
+            note_kept(error, "no result folder was kept")
+        note_kept(error, f"the partial result is kept in {folder} (result.json: partial)")
         raise
     if not run.frame_indices:
         remove_result_folder(folder)
