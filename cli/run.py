@@ -85,7 +85,7 @@ def given(ctx: click.Context, name: str) -> bool:
     default=None,
     help="Polish each pairwise estimate: open3d point-to-plane ICP, or kiss-icp against its local map. "
     f"Default: {DEFAULT_GLOBAL_POLISH} for the global methods (vcr, fpfh), none for the local ones. "
-    "(--refine is the same option's older name.)",
+    "(Also spelled --refine.)",
 )
 @click.option(
     "--save-map",

@@ -179,6 +179,10 @@ def test_run_out_of_space_for_its_scores_keeps_the_trajectory(
     result = invoke("run", "--data-root", small_synthetic_root, "--method", "icp", "--results-dir", results)
     assert_fails(result, 1, "metrics.json", NO_SPACE)
     (folder,) = result_folders(results)
+    assert f"{folder / 'metrics.json'}: could not write" in result.output, (
+        "the file named in its result folder"
+    )
+    assert ".unit-" not in result.output, "not in the hidden staging folder it was written in"
     assert marker(folder)["status"] == "partial" and NO_SPACE in marker(folder)["reason"]
     assert len(np.loadtxt(folder / "trajectory_kitti.txt")) == FRAMES
     assert hidden_litter(results) == []
