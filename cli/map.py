@@ -85,7 +85,7 @@ FIELDS = MapSettings.model_fields
     default=FIELDS["ground_up"].default,
     show_default=True,
     help="Hold each node's tilt to the ground seen in its scan wherever the odometry's tilt drifted "
-    "(more than 1.5 deg from it at 10 % of the nodes), which loops cannot see; turn off where the "
+    "(more than 6 deg from it at 10 % of the nodes, beyond a road's grade), which loops cannot see; turn off where the "
     "ground is far from level (steep hills, stairs).",
 )
 @initial_guess_option
