@@ -134,6 +134,7 @@ def score(
         "map_seconds": map_seconds,
         "time_ratio": map_seconds / odometry_seconds,
         "phase_seconds": outcome.seconds,
+        "ground_up": metrics["loops"].get("ground_up"),
         "nodes": metrics["memory"]["nodes"],
         "node_mib": metrics["memory"]["node_bytes"] / 2**20,
         "peak_rss_mib": metrics["memory"]["peak_rss_bytes"] / 2**20,
