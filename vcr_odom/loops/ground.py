@@ -3,7 +3,7 @@
 Why the map needs it: a scan matcher's tilt (roll, pitch) drifts like its heading, and a tilted
 stretch of trajectory still closes its loops: a lobe of a figure eight driven in a plane tilted by
 10 degrees meets itself at its ends, so loops leave its middle metres too high or too low. On a
-16-beam car drive that was nearly all of the map's error (docs/benchmarks.md, "Loop closure").
+16-beam car drive that was nearly all of the map's error (docs/benchmarks.md, "Maps that close their loops").
 The ground is seen in every scan of a ground vehicle or a walk, so each node's measured up direction
 holds the graph's tilt, loosely (:data:`~vcr_odom.loops.graph.ATTITUDE_SIGMA_DEG`): roads slope.
 
