@@ -49,7 +49,7 @@ class PreprocessConfig(Settings):
       walls of 21-24 k points before a road of 20 k), and the earlier attempts are unchanged by more;
       ``ground_sample_size=10000``: RANSAC scores its hypotheses on a seeded random subset of this
       many points; the winning plane is then refitted (least squares, a few rounds) to the subset's
-      points within the threshold (:func:`_refit_plane`), and every point of the scan within the
+      points within the threshold (:func:`refit_plane`), and every point of the scan within the
       threshold of that plane is ground. Scoring costs time in proportion to the points scored, and
       thousands of road points already pin a plane, so a subset finds the same plane as the whole
       scan for a fraction of the cost.
@@ -128,20 +128,20 @@ def crop_range(points: NDArray, min_range: float, max_range: float) -> NDArray[n
     return points[(squared > min_range * min_range) & (squared < max_range * max_range)]
 
 
-def _upward_plane(model: NDArray) -> NDArray[np.float64]:
+def upward_plane(model: NDArray) -> NDArray[np.float64]:
     """Plane ``a x + b y + c z + d = 0`` scaled to a unit normal pointing up (c >= 0)."""
     model = np.asarray(model, dtype=np.float64).ravel()
     model = model / np.linalg.norm(model[:3])
     return -model if model[2] < 0 else model
 
 
-def _is_ground(model: NDArray[np.float64], max_tilt_deg: float) -> bool:
+def is_ground(model: NDArray[np.float64], max_tilt_deg: float) -> bool:
     """Roughly horizontal (normal within ``max_tilt_deg`` of z) and below the sensor (z at x=y=0 < 0)."""
     tilt = np.degrees(np.arccos(np.clip(model[2], -1.0, 1.0)))
     return bool(tilt <= max_tilt_deg and -model[3] / model[2] < 0.0)
 
 
-def _refit_plane(
+def refit_plane(
     xyz: NDArray[np.float64], plane: NDArray[np.float64], threshold: float, rounds: int = 3
 ) -> NDArray[np.float64]:
     """Least-squares plane of the points within ``threshold``, refitted a few rounds.
@@ -158,7 +158,7 @@ def _refit_plane(
         centroid = points.mean(axis=0)
         centred = points - centroid
         _, vectors = np.linalg.eigh(centred.T @ centred)  # 3x3 scatter: far cheaper than an N x 3 SVD
-        plane = _upward_plane(np.append(vectors[:, 0], -vectors[:, 0] @ centroid))
+        plane = upward_plane(np.append(vectors[:, 0], -vectors[:, 0] @ centroid))
         refit = np.abs(xyz @ plane[:3] + plane[3]) <= threshold
         if np.array_equal(refit, inliers):
             break
@@ -196,9 +196,9 @@ def remove_ground(
         )
         if len(sample_inliers) == 0:
             break
-        plane = _refit_plane(xyz[sample], _upward_plane(model), config.ground_distance_threshold)
+        plane = refit_plane(xyz[sample], upward_plane(model), config.ground_distance_threshold)
         is_inlier = np.abs(xyz[candidates] @ plane[:3] + plane[3]) <= config.ground_distance_threshold
-        if _is_ground(plane, config.ground_max_tilt_deg):
+        if is_ground(plane, config.ground_max_tilt_deg):
             keep = np.ones(len(points), dtype=bool)
             keep[candidates[is_inlier]] = False
             return points[keep], plane

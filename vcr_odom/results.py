@@ -273,15 +273,11 @@ def result_unit(folder: str | os.PathLike[str]) -> Iterator[Path]:
         with deferred_interrupts():
             _publish(folder, staging)
             published = True
-    except DataError as error:  # name the result folder, not its hidden staging one
+    except BaseException as error:
         if not published:
             shutil.rmtree(staging, ignore_errors=True)
-        if str(staging) not in str(error):
-            raise
-        raise DataError(str(error).replace(str(staging), str(folder))) from error
-    except BaseException:
-        if not published:
-            shutil.rmtree(staging, ignore_errors=True)
+        if isinstance(error, DataError) and str(staging) in str(error):  # name the result folder,
+            raise DataError(str(error).replace(str(staging), str(folder))) from error  # not its staging
         raise
 
 

@@ -19,6 +19,7 @@ import open3d as o3d
 from numpy.typing import NDArray
 
 from vcr_odom.data.base import Points
+from vcr_odom.preprocess import is_ground, upward_plane
 
 NEAR_M = (0.5, 20.0)
 """Horizontal range of the points used: the ground is densest near the sensor."""
@@ -27,6 +28,8 @@ BAND_M = 0.6
 DISTANCE_M = 0.08
 MAX_TILT_DEG = 30.0
 """A plane tilted further from the scan's own z axis is a ramp, a wall or a wrong fit."""
+SENSOR_ABOVE_M = 0.2
+"""The sensor is at least this far above the plane (a plane through it is a wrong fit)."""
 MIN_POINTS = 30
 INPUT_POINTS = 20_000
 """A dense scan is taken every k-th point down to about this many first (the cost is in the scan's size)."""
@@ -53,11 +56,10 @@ def ground_normal(points: Points) -> NDArray[np.float64] | None:
     _, inliers = cloud.segment_plane(DISTANCE_M, 3, ITERATIONS, probability=1.0)
     if len(inliers) < MIN_POINTS:
         return None
-    plane = low[inliers]
-    centred = plane - plane.mean(axis=0)
-    _, vectors = np.linalg.eigh(centred.T @ centred)
-    normal = vectors[:, 0] * np.sign(vectors[2, 0] or 1.0)
-    below = float(normal @ plane.mean(axis=0)) < -0.2  # the sensor is above it
-    if not below or np.degrees(np.arccos(min(1.0, normal[2]))) > MAX_TILT_DEG:
+    on_plane = low[inliers]  # least squares on RANSAC's inliers: its own model is from three points
+    centroid = on_plane.mean(axis=0)
+    _, vectors = np.linalg.eigh((on_plane - centroid).T @ (on_plane - centroid))
+    plane = upward_plane(np.append(vectors[:, 0], -vectors[:, 0] @ centroid))
+    if not is_ground(plane, MAX_TILT_DEG) or plane[3] < SENSOR_ABOVE_M:
         return None
-    return normal
+    return plane[:3]
