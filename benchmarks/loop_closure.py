@@ -24,6 +24,7 @@ Per sequence:
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import math
 import tempfile
@@ -142,17 +143,20 @@ def score(
     }
 
 
-def kiss_slam_row(outcome: MapOutcome) -> dict[str, Any]:
-    """KISS-SLAM on the map's frames: SE(3)-aligned ATE, closures, wall time."""
+def kiss_slam_row(outcome: MapOutcome, odometry_seconds: float) -> dict[str, Any]:
+    """KISS-SLAM on the map's frames: SE(3)-aligned ATE, closures, wall time (against the odometry's).
+    Its closures are counted, not scored: KISS-SLAM keeps no measured transform per closure."""
     from vcr_odom.evaluation.kiss_slam import run_kiss_slam
 
     gt = ground_truth_for(outcome.sequence, outcome.odometry.frame_indices)
     started = time.perf_counter()
     slam = run_kiss_slam(outcome.sequence, outcome.odometry.frame_indices)
+    seconds = time.perf_counter() - started
     return {
         "kiss_slam_ate_m": ate_rpe(slam.poses, gt, alignment="se3").ate_trans_rmse_m,
         "kiss_slam_closures": slam.num_closures,
-        "kiss_slam_seconds": time.perf_counter() - started,
+        "kiss_slam_seconds": seconds,
+        "kiss_slam_time_ratio": seconds / odometry_seconds,
     }
 
 
@@ -171,6 +175,15 @@ COLUMNS = (
 )
 
 
+SLAM_COLUMNS = ("KISS-SLAM ATE [m]", "KISS-SLAM closures", "time KISS-SLAM/odometry")
+"""Added when KISS-SLAM ran (``--kiss-slam``)."""
+
+
+def headers(rows: list[dict[str, Any]]) -> list[str]:
+    slam = any("kiss_slam_ate_m" in row for row in rows)
+    return [h for h, _, _ in COLUMNS] + (list(SLAM_COLUMNS) if slam else [])
+
+
 def cells(row: dict[str, Any]) -> list[str]:
     out = []
     for _, key, fmt in COLUMNS:
@@ -179,6 +192,12 @@ def cells(row: dict[str, Any]) -> list[str]:
     out.insert(6, f"{row['passages_closed']}/{row['revisit_passages']}")
     out.insert(7, f"{row['accepted']} ({row['false_closures']})")
     out.append(f"{row['node_mib']:.1f} / {row['peak_rss_mib']:.0f}")
+    if "kiss_slam_ate_m" in row:
+        out += [
+            f"{row['kiss_slam_ate_m']:.3f}",
+            str(row["kiss_slam_closures"]),
+            f"{row['kiss_slam_time_ratio']:.2f}",
+        ]
     return out
 
 
@@ -205,6 +224,8 @@ def main() -> None:
         parser.error(
             f"--name: {len(args.name)} given for {len(args.sequence)} --sequence; give one each or none"
         )
+    if args.kiss_slam and importlib.util.find_spec("kiss_slam") is None:
+        parser.error("--kiss-slam: kiss-slam is not installed (pip install 'vcr-odom[slam]')")
     rows = []
     with tempfile.TemporaryDirectory() as scratch:
         for index, folder in enumerate(args.sequence):
@@ -221,10 +242,10 @@ def main() -> None:
             if args.name:
                 row["sequence"] = f"{seq} {args.name[index]}"
             if args.kiss_slam:
-                row.update(kiss_slam_row(outcome))
+                row.update(kiss_slam_row(outcome, odometry_seconds))
             rows.append(row)
     table = Table(title="vcr-odom map against its odometry")
-    for header, _, _ in COLUMNS:
+    for header in headers(rows):
         table.add_column(header)
     for row in rows:
         table.add_row(*cells(row))
@@ -232,7 +253,8 @@ def main() -> None:
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1))
     if args.markdown:
-        lines = ["| " + " | ".join(h for h, _, _ in COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
+        names = headers(rows)
+        lines = ["| " + " | ".join(names) + " |", "|" + "---|" * len(names)]
         lines += ["| " + " | ".join(cells(row)) + " |" for row in rows]
         args.markdown.write_text("\n".join(lines) + "\n")
 
