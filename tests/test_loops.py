@@ -18,7 +18,7 @@ from vcr_odom.loops.drift import DriftModel
 from vcr_odom.loops.graph import LoopEdge, correct_frames, optimise
 from vcr_odom.loops.nodes import Node
 
-EXACT = np.diag([1e4] * 3 + [1e2] * 3)
+EXACT = np.diag([1e6] * 3 + [1e4] * 3)  # a loop measured to 1 mrad and 1 cm
 
 
 def _node(k: int, pose: np.ndarray, path_m: float) -> Node:
@@ -60,6 +60,26 @@ def test_candidates_are_revisits_within_the_drift_and_none_on_a_street() -> None
     assert min(true_distances) < 5.0
     street = [make_transform(np.eye(3), [3.0 * k, 0, 0]) for k in range(200)]
     assert find_candidates(_nodes(street)) == []
+
+
+def test_a_crossing_is_attempted_at_the_node_nearest_the_earlier_street() -> None:
+    """A street crossed at 90 deg after a detour: the drift bound admits nodes 10-20 m short of the
+    crossing, and the one attempt must not be spent there but at the crossing itself."""
+    east = [make_transform(np.eye(3), [3.0 * k - 60.0, 0, 0]) for k in range(41)]  # x -60..60 along y=0
+    north = rotation_from_euler_zyx(math.pi / 2, 0, 0)
+    detour = [make_transform(np.eye(3), [60.0, 3.0 * k, 0]) for k in range(1, 11)]  # up to y=30
+    back = [make_transform(np.eye(3), [60.0 - 3.0 * k, 30.0, 0]) for k in range(1, 21)]  # west to x=0
+    south = [make_transform(north.T, [1.0, 30.0 - 3.0 * k, 0]) for k in range(20)]  # down x=1, y=0 at k=10
+    nodes = _nodes(east + detour + back + south)
+    candidates = find_candidates(nodes)
+    crossing = [c for c in candidates if c.source > len(east) + len(detour) + len(back)]
+    assert crossing, "the southbound street crosses the first one"
+    nearest = min(crossing, key=lambda c: c.distance_m)
+    assert nearest.distance_m < 1.5  # (1, 0) against (0, 0): the crossing itself; first come, 3 m short
+    sources = [c.source for c in crossing]
+    assert len(sources) == len(set(sources))
+    gaps = np.diff(sorted(nodes[j].path_m for j in sources))
+    assert (gaps >= 6.0).all(), "attempts stay one every 6 m of path"
 
 
 def test_a_loop_pulls_a_drifted_circle_back_and_no_loop_changes_nothing() -> None:

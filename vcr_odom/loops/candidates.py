@@ -4,7 +4,10 @@ Each node is compared with the nodes driven at least ``min_loop_path_m`` before 
 by odometry position is a candidate when it lies within ``revisit_radius_m`` plus the drift the
 odometry may have gathered between the two visits (:class:`DriftModel`). One candidate every
 ``attempt_spacing_m`` of path at most: a revisit is a passage of many nodes, a few loops along it
-pin it, and each candidate costs a registration.
+pin it, and each candidate costs a registration. A passage's attempts start at its node closest to
+the earlier visit and go outwards: where two streets cross, the passage is a few nodes long and only
+the node at the crossing sees enough of the other street's scan (one taken from where the drift
+bound first admits a node may be 10-20 m short of it).
 """
 
 from __future__ import annotations
@@ -47,11 +50,8 @@ def find_candidates(
         return []
     positions = np.stack([node.pose[:3, 3] for node in nodes])
     path = np.array([node.path_m for node in nodes])
-    candidates: list[LoopCandidate] = []
-    last_attempt = -np.inf
+    nearest: dict[int, LoopCandidate] = {}
     for j, node in enumerate(nodes):
-        if node.path_m - last_attempt < attempt_spacing_m:
-            continue
         earlier = np.flatnonzero(path <= node.path_m - min_loop_path_m)
         if len(earlier) == 0:
             continue
@@ -59,9 +59,25 @@ def find_candidates(
         best = int(np.argmin(distances))
         i = int(earlier[best])
         travelled = float(node.path_m - path[i])
-        if distances[best] > revisit_radius_m + drift.translation_bound(travelled):
-            continue
-        prior = invert(nodes[i].pose) @ node.pose
-        candidates.append(LoopCandidate(j, i, prior, travelled, float(distances[best])))
-        last_attempt = node.path_m
-    return candidates
+        if distances[best] <= revisit_radius_m + drift.translation_bound(travelled):
+            prior = invert(nodes[i].pose) @ node.pose
+            nearest[j] = LoopCandidate(j, i, prior, travelled, float(distances[best]))
+    chosen: list[LoopCandidate] = []
+    for passage in _passages(sorted(nearest)):
+        picked: list[float] = []
+        for j in sorted(passage, key=lambda k: nearest[k].distance_m):
+            if all(abs(path[j] - other) >= attempt_spacing_m for other in picked):
+                picked.append(float(path[j]))
+                chosen.append(nearest[j])
+    return sorted(chosen, key=lambda candidate: candidate.source)
+
+
+def _passages(indices: list[int]) -> list[list[int]]:
+    """Runs of consecutive node indices: the nodes of one revisit, attempted from its closest node."""
+    runs: list[list[int]] = []
+    for j in indices:
+        if runs and j == runs[-1][-1] + 1:
+            runs[-1].append(j)
+        else:
+            runs.append([j])
+    return runs

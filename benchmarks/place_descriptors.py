@@ -1,0 +1,230 @@
+"""Place descriptors against the position search: which finds more truly revisited places, and at what
+cost in false ones. Not a test: run
+
+    .venv/bin/python benchmarks/place_descriptors.py --sequence runs/loops/synth/sequences/803 \
+        [--sequence ...] [--odometry 803=odometry_kitti.txt] [--json out.json] [--markdown table.md]
+
+``vcr-odom map`` proposes a loop candidate where the odometry puts a node within 5 m plus its drift
+bound of a node driven 30 m or more before. Beyond the bound only appearance can propose one. Two
+descriptors are measured on the same nodes (the map's: one every 3 m or 20 deg, each a 1 m voxel
+cloud), each node's earlier nodes searched for its best match at least 30 m of path before:
+
+- **map-closures** (KISS-SLAM's: ORB features of a bird's-eye density image, matched with RANSAC;
+  ``vcr-odom[slam]``), on local submaps: the node clouds within 20 m of path joined by the odometry.
+- **VCR-Net's own features**: the encoder's features (which see only relative geometry, so a heading
+  changes nothing) of the node's cloud, mean- and max-pooled and compared by cosine similarity.
+
+A proposal is true when ground truth puts the two nodes within 10 m (close enough to register), false
+otherwise (a look-alike block). For each acceptance threshold: true and false proposals, the revisited
+nodes reached (a node truly within 5 m of one 30 m of path before, with a true proposal), and those of
+them the position search cannot reach (the odometry's distance beyond 5 m plus the drift bound).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from numpy.typing import NDArray
+
+from vcr_odom.data.selection import FrameSelection
+from vcr_odom.geometry import invert
+from vcr_odom.loops.candidates import MIN_LOOP_PATH_M, REVISIT_RADIUS_M, find_candidates
+from vcr_odom.loops.drift import DriftModel
+from vcr_odom.loops.nodes import Node, NodeRecorder
+from vcr_odom.odometry.loop import run_odometry
+from vcr_odom.odometry.outputs import ground_truth_for
+from vcr_odom.odometry.run import RunSettings, method_for
+from vcr_odom.registration.vcr import VcrRegistrar
+
+TRUE_PLACE_M = 10.0
+"""A proposal between nodes truly this close is a real revisit (registrable), farther a false one."""
+SUBMAP_PATH_M = 20.0
+"""A map-closures submap: the node clouds within this path of the node (KISS-SLAM's are 100 m)."""
+INLIER_THRESHOLDS = (5, 10, 20, 40)
+SIMILARITY_THRESHOLDS = (0.95, 0.98, 0.99, 0.995)
+
+
+@dataclass
+class Proposal:
+    source: int
+    target: int
+    score: float
+
+
+def nodes_of(folder: Path, odometry: Path | None, method: str) -> tuple[list[Node], NDArray[np.float64]]:
+    """The map's nodes over the sequence (the odometry run, or a given trajectory), and each node's
+    true pose."""
+    selection = FrameSelection(data_root=folder.parent.parent, seq=folder.name)
+    sequence = selection.open()
+    indices = selection.indices(sequence)
+    recorder = NodeRecorder()
+    if odometry is None:
+        run_odometry(
+            sequence, method_for(RunSettings(selection=selection, method=method)), indices, on_frame=recorder
+        )
+    else:
+        rows = np.loadtxt(odometry, ndmin=2)
+        if len(rows) != len(indices):
+            raise SystemExit(f"{odometry}: {len(rows)} poses for {len(indices)} frames of {folder}")
+        poses = np.tile(np.eye(4), (len(rows), 1, 1))
+        poses[:, :3, :] = rows.reshape(-1, 3, 4)
+        for index, pose in zip(indices, poses, strict=True):
+            recorder(index, pose, sequence.frame(index))
+    nodes = recorder.finish()
+    gt = ground_truth_for(sequence, recorder.frame_indices)
+    if gt is None:
+        raise SystemExit(f"{folder}: no ground-truth poses")
+    return nodes, gt[[node.position for node in nodes]]
+
+
+def earlier(nodes: list[Node], j: int) -> NDArray[np.int64]:
+    path = np.array([node.path_m for node in nodes])
+    return np.flatnonzero(path <= nodes[j].path_m - MIN_LOOP_PATH_M)
+
+
+def submap(nodes: list[Node], j: int) -> NDArray[np.float64]:
+    """The node clouds within :data:`SUBMAP_PATH_M` of node ``j``'s path, in its frame."""
+    into = invert(nodes[j].pose)
+    parts = []
+    for node in nodes:
+        if abs(node.path_m - nodes[j].path_m) <= SUBMAP_PATH_M:
+            move = into @ node.pose
+            parts.append(node.cloud.astype(np.float64) @ move[:3, :3].T + move[:3, 3])
+    return np.concatenate(parts)
+
+
+def map_closures_proposals(nodes: list[Node]) -> list[Proposal]:
+    from map_closures.map_closures import MapClosures
+
+    detector = MapClosures()
+    proposals = []
+    for j in range(len(nodes)):
+        closures = detector.get_closures(j, submap(nodes, j))
+        allowed = set(earlier(nodes, j).tolist())
+        best = max(
+            (c for c in closures if c.source_id in allowed or (c.target_id in allowed and c.source_id == j)),
+            key=lambda c: c.number_of_inliers,
+            default=None,
+        )
+        if best is not None:
+            other = best.source_id if best.source_id != j else best.target_id
+            proposals.append(Proposal(j, int(other), float(best.number_of_inliers)))
+    return proposals
+
+
+@torch.inference_mode()
+def network_proposals(nodes: list[Node], network: VcrRegistrar) -> list[Proposal]:
+    descriptors = []
+    for node in nodes:
+        points = network.network_input(node.cloud)
+        tensor = torch.as_tensor(points[None], dtype=torch.float32, device=network.device)
+        features = network.model.encode(tensor)[0]
+        vector = torch.cat([features.mean(0), features.max(0).values])
+        descriptors.append((vector / vector.norm()).cpu().numpy())
+    stack = np.stack(descriptors)
+    proposals = []
+    for j in range(len(nodes)):
+        before = earlier(nodes, j)
+        if len(before):
+            similarity = stack[before] @ stack[j]
+            best = int(np.argmax(similarity))
+            proposals.append(Proposal(j, int(before[best]), float(similarity[best])))
+    return proposals
+
+
+def position_proposals(nodes: list[Node]) -> list[Proposal]:
+    return [Proposal(c.source, c.target, 1.0) for c in find_candidates(nodes, DriftModel())]
+
+
+def score(
+    name: str, proposals: list[Proposal], thresholds: tuple[float, ...], nodes: list[Node], gt: NDArray
+) -> list[dict[str, Any]]:
+    truth = gt[:, :3, 3]
+    odometry = np.stack([node.pose[:3, 3] for node in nodes])
+    drift = DriftModel()
+    revisits, unreachable = set(), set()
+    for j in range(len(nodes)):
+        before = earlier(nodes, j)
+        if len(before) == 0:
+            continue
+        close = before[np.linalg.norm(truth[before] - truth[j], axis=1) <= REVISIT_RADIUS_M]
+        if len(close):
+            revisits.add(j)
+            # The position search reaches j where some truly close node is within its radius + bound.
+            reach = [
+                np.linalg.norm(odometry[i] - odometry[j])
+                <= REVISIT_RADIUS_M + drift.translation_bound(nodes[j].path_m - nodes[i].path_m)
+                for i in close
+            ]
+            if not any(reach):
+                unreachable.add(j)
+    rows = []
+    for threshold in thresholds:
+        kept = [p for p in proposals if p.score >= threshold]
+        true = [p for p in kept if np.linalg.norm(truth[p.source] - truth[p.target]) <= TRUE_PLACE_M]
+        reached = {p.source for p in true} & revisits
+        rows.append(
+            {
+                "descriptor": name,
+                "threshold": threshold,
+                "proposals": len(kept),
+                "true": len(true),
+                "false": len(kept) - len(true),
+                "revisit_nodes": len(revisits),
+                "reached": len(reached),
+                "beyond_bound": len(unreachable),
+                "beyond_bound_reached": len(reached & unreachable),
+            }
+        )
+    return rows
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--sequence", type=Path, action="append", required=True, help="sequences/<id> folder")
+    parser.add_argument(
+        "--odometry",
+        action="append",
+        default=[],
+        help="ID=FILE: that sequence's odometry (KITTI format) instead of a run",
+    )
+    parser.add_argument("--method", default="vcr", help="the odometry, where no --odometry is given")
+    parser.add_argument("--json", type=Path)
+    parser.add_argument("--markdown", type=Path)
+    args = parser.parse_args()
+    if importlib.util.find_spec("map_closures") is None:
+        parser.error("map-closures is not installed (pip install 'vcr-odom[slam]')")
+    given = dict(item.split("=", 1) for item in args.odometry)
+    network = VcrRegistrar()
+    rows = []
+    for folder in args.sequence:
+        file = given.get(folder.name)
+        nodes, gt = nodes_of(folder, Path(file) if file else None, args.method)
+        for name, proposals, thresholds in (
+            ("position (map)", position_proposals(nodes), (1.0,)),
+            ("map-closures", map_closures_proposals(nodes), INLIER_THRESHOLDS),
+            ("VCR-Net features", network_proposals(nodes, network), SIMILARITY_THRESHOLDS),
+        ):
+            for row in score(name, proposals, thresholds, nodes, gt):
+                rows.append({"sequence": folder.name, **row})
+                print(json.dumps(rows[-1]), flush=True)
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=1))
+    if args.markdown:
+        keys = list(rows[0])
+        lines = ["| " + " | ".join(keys) + " |", "|" + "---|" * len(keys)]
+        lines += ["| " + " | ".join(str(row[k]) for k in keys) + " |" for row in rows]
+        args.markdown.write_text("\n".join(lines) + "\n")
+
+
+if __name__ == "__main__":
+    main()
