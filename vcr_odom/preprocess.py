@@ -141,6 +141,14 @@ def is_ground(model: NDArray[np.float64], max_tilt_deg: float) -> bool:
     return bool(tilt <= max_tilt_deg and -model[3] / model[2] < 0.0)
 
 
+def least_squares_plane(points: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The upward plane through ``points`` (at least 3) that minimises their squared distances."""
+    centroid = points.mean(axis=0)
+    centred = points - centroid
+    _, vectors = np.linalg.eigh(centred.T @ centred)  # 3x3 scatter: far cheaper than an N x 3 SVD
+    return upward_plane(np.append(vectors[:, 0], -vectors[:, 0] @ centroid))
+
+
 def refit_plane(
     xyz: NDArray[np.float64], plane: NDArray[np.float64], threshold: float, rounds: int = 3
 ) -> NDArray[np.float64]:
@@ -155,10 +163,7 @@ def refit_plane(
         points = xyz[inliers]
         if len(points) < 3:
             break
-        centroid = points.mean(axis=0)
-        centred = points - centroid
-        _, vectors = np.linalg.eigh(centred.T @ centred)  # 3x3 scatter: far cheaper than an N x 3 SVD
-        plane = upward_plane(np.append(vectors[:, 0], -vectors[:, 0] @ centroid))
+        plane = least_squares_plane(points)
         refit = np.abs(xyz @ plane[:3] + plane[3]) <= threshold
         if np.array_equal(refit, inliers):
             break

@@ -19,7 +19,7 @@ import open3d as o3d
 from numpy.typing import NDArray
 
 from vcr_odom.data.base import Points
-from vcr_odom.preprocess import is_ground, upward_plane
+from vcr_odom.preprocess import is_ground, least_squares_plane
 
 NEAR_M = (0.5, 20.0)
 """Horizontal range of the points used: the ground is densest near the sensor."""
@@ -56,10 +56,7 @@ def ground_normal(points: Points) -> NDArray[np.float64] | None:
     _, inliers = cloud.segment_plane(DISTANCE_M, 3, ITERATIONS, probability=1.0)
     if len(inliers) < MIN_POINTS:
         return None
-    on_plane = low[inliers]  # least squares on RANSAC's inliers: its own model is from three points
-    centroid = on_plane.mean(axis=0)
-    _, vectors = np.linalg.eigh((on_plane - centroid).T @ (on_plane - centroid))
-    plane = upward_plane(np.append(vectors[:, 0], -vectors[:, 0] @ centroid))
+    plane = least_squares_plane(low[inliers])  # RANSAC's own model rests on three points
     if not is_ground(plane, MAX_TILT_DEG) or plane[3] < SENSOR_ABOVE_M:
         return None
     return plane[:3]

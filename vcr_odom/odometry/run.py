@@ -141,7 +141,8 @@ def run_sequence(settings: RunSettings, progress: ProgressFactory | None = None)
         if not holds_trajectory(folder):  # failed before its first frame: nothing worth keeping
             remove_result_folder(folder)
             note_kept(error, "no result folder was kept")
-        note_kept(error, f"the partial result is kept in {folder} (result.json: partial)")
+        else:
+            note_kept(error, f"the partial result is kept in {folder} (result.json: partial)")
         raise
     if not run.frame_indices:
         remove_result_folder(folder)
