@@ -2,7 +2,7 @@
 cost in false ones. Not a test: run
 
     .venv/bin/python benchmarks/place_descriptors.py --sequence runs/loops/synth/sequences/803 \
-        [--sequence ...] [--odometry 803=odometry_kitti.txt] [--json out.json] [--markdown table.md]
+        [--sequence ...] [--method vcr] [--json out.json] [--markdown table.md]
 
 ``vcr-odom map`` proposes a loop candidate where the odometry puts a node within 5 m plus its drift
 bound of a node driven 30 m or more before. Beyond the bound only appearance can propose one. Two
@@ -58,25 +58,16 @@ class Proposal:
     score: float
 
 
-def nodes_of(folder: Path, odometry: Path | None, method: str) -> tuple[list[Node], NDArray[np.float64]]:
-    """The map's nodes over the sequence (the odometry run, or a given trajectory), and each node's
-    true pose."""
+def nodes_of(folder: Path, method: str) -> tuple[list[Node], NDArray[np.float64]]:
+    """The map's nodes over the sequence, recorded during an odometry run as ``map`` records them (the
+    poses in the scans' own frame), and each node's true pose."""
     selection = FrameSelection(data_root=folder.parent.parent, seq=folder.name)
     sequence = selection.open()
     indices = selection.indices(sequence)
     recorder = NodeRecorder()
-    if odometry is None:
-        run_odometry(
-            sequence, method_for(RunSettings(selection=selection, method=method)), indices, on_frame=recorder
-        )
-    else:
-        rows = np.loadtxt(odometry, ndmin=2)
-        if len(rows) != len(indices):
-            raise SystemExit(f"{odometry}: {len(rows)} poses for {len(indices)} frames of {folder}")
-        poses = np.tile(np.eye(4), (len(rows), 1, 1))
-        poses[:, :3, :] = rows.reshape(-1, 3, 4)
-        for index, pose in zip(indices, poses, strict=True):
-            recorder(index, pose, sequence.frame(index))
+    run_odometry(
+        sequence, method_for(RunSettings(selection=selection, method=method)), indices, on_frame=recorder
+    )
     nodes = recorder.finish()
     gt = ground_truth_for(sequence, recorder.frame_indices)
     if gt is None:
@@ -191,24 +182,16 @@ def main() -> None:
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("--sequence", type=Path, action="append", required=True, help="sequences/<id> folder")
-    parser.add_argument(
-        "--odometry",
-        action="append",
-        default=[],
-        help="ID=FILE: that sequence's odometry (KITTI format) instead of a run",
-    )
-    parser.add_argument("--method", default="vcr", help="the odometry, where no --odometry is given")
+    parser.add_argument("--method", default="vcr", help="the odometry whose nodes are searched")
     parser.add_argument("--json", type=Path)
     parser.add_argument("--markdown", type=Path)
     args = parser.parse_args()
     if importlib.util.find_spec("map_closures") is None:
         parser.error("map-closures is not installed (pip install 'vcr-odom[slam]')")
-    given = dict(item.split("=", 1) for item in args.odometry)
     network = VcrRegistrar()
     rows = []
     for folder in args.sequence:
-        file = given.get(folder.name)
-        nodes, gt = nodes_of(folder, Path(file) if file else None, args.method)
+        nodes, gt = nodes_of(folder, args.method)
         for name, proposals, thresholds in (
             ("position (map)", position_proposals(nodes), (1.0,)),
             ("map-closures", map_closures_proposals(nodes), INLIER_THRESHOLDS),
