@@ -1,4 +1,5 @@
-"""``vcr-odom synth``: write a synthetic sequence (procedural street, ray-cast LiDAR scans) in the KITTI layout."""
+"""``vcr-odom synth``: write a synthetic sequence (procedural street or indoor floor, ray-cast LiDAR scans)
+in the KITTI layout."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ from vcr_odom.cli.config_options import config_options
 from vcr_odom.cli.progress import EXIT_CODES_HELP, console, frame_progress
 from vcr_odom.results import check_output_folder, note_kept
 from vcr_odom.synth import (
-    SCENE_STYLES,
+    SCENES,
     SENSOR_MODELS,
     SEQUENCE_NAME,
     SynthConfig,
@@ -46,6 +47,7 @@ def _check_seq(ctx: click.Context, param: click.Parameter, value: str) -> str:
     default="hdl64",
     show_default=True,
     help="LiDAR model: hdl64 (KITTI's HDL-64E), hdl32 (HDL-32E), vlp16 (VLP-16), os128 (Ouster OS1-128), "
+    "os0 (Ouster OS0-128: 128 beams over 90 deg, 0.3-50 m, for indoors), "
     "avia (Livox Avia-like forward rosette, 70x77 deg), mid360 (Livox Mid-360-like, 360x59 deg); "
     "avia and mid360 scan non-repetitive patterns.",
 )
@@ -54,15 +56,17 @@ def _check_seq(ctx: click.Context, param: click.Parameter, value: str) -> str:
     type=click.FloatRange(min=0.3, max=5.0),
     default=None,
     help="Sensor height above the ground in m (default 1.73, KITTI's mounting; with --motion "
-    "handheld, a hand height of 1.2-1.6 m drawn from the seed).",
+    "handheld, a hand height of 1.2-1.6 m drawn from the seed; at most 1.8 indoors).",
 )
 @click.option(
     "--scene",
-    type=click.Choice(SCENE_STYLES),
+    type=click.Choice(SCENES),
     default="suburban",
     show_default=True,
     help="Street style: suburban (town, suburbs, country roads), avenue (wide, medians, trees), "
-    "highway (4-6 lanes, guard rails, long curves), oldtown (narrow lanes, houses at the curb, tight turns).",
+    "highway (4-6 lanes, guard rails, long curves), oldtown (narrow lanes, houses at the curb, tight turns); "
+    "or indoor: one floor of a building, a ring of corridors round a core of rooms (doors, niches, columns, "
+    "clutter, a hall or two), walked with --motion handheld on --route loop or return.",
 )
 @click.option(
     "--stops/--no-stops",

@@ -180,7 +180,9 @@ def _elevations_deg(points: np.ndarray) -> np.ndarray:
     return np.degrees(np.arctan2(xyz[:, 2], np.hypot(xyz[:, 0], xyz[:, 1])))
 
 
-@pytest.mark.parametrize("name", SENSOR_SPECS)  # the solid-state ones: tests/test_synth_solid_state.py
+# Solid-state sensors: tests/test_synth_solid_state.py; the os0 (its upper beams see sky on a street):
+# tests/test_synth_indoor.py.
+@pytest.mark.parametrize("name", SENSOR_SPECS)
 def test_sensor_presets_have_their_published_beam_layout(name: str) -> None:
     top, bottom, beams, resolution = SENSOR_SPECS[name]
     sensor = SensorConfig.model(name)

@@ -163,10 +163,11 @@ def test_blocks_repeat_exactly_and_are_never_revisited() -> None:
 # -- every sensor, the walker, the CLI -------------------------------------------------------------
 
 
-@pytest.mark.parametrize(
-    ("sensor", "route"),
-    list(zip(SENSOR_MODELS, ["loop", "figure8", "return", "blocks", "figure8", "return"], strict=True)),
-)
+SENSOR_ROUTES = ["loop", "figure8", "return", "blocks", "loop", "figure8", "return"]
+"""A route for each of SENSOR_MODELS, in its order."""
+
+
+@pytest.mark.parametrize(("sensor", "route"), list(zip(SENSOR_MODELS, SENSOR_ROUTES, strict=True)))
 def test_every_sensor_scans_the_routes(sensor: str, route: str) -> None:
     sequence = SynthSequence(frames=400, seed=4, route=route, sensor=sensor)
     pairs = true_revisits(sequence)

@@ -27,6 +27,7 @@ from scipy.spatial.transform import Rotation
 
 from vcr_odom.errors import ConfigError
 from vcr_odom.synth.drive import Drive
+from vcr_odom.synth.indoor import IndoorScene
 from vcr_odom.synth.road import PREROLL, ROAD_STEP
 from vcr_odom.synth.scene import StreetScene
 
@@ -53,7 +54,7 @@ Signal = Callable[[NDArray[np.float64]], NDArray[np.float64]]
 
 
 def make_walk(
-    scene: StreetScene,
+    scene: StreetScene | IndoorScene,
     *,
     frames: int,
     height: float | None,
@@ -61,7 +62,8 @@ def make_walk(
     frame_period: float,
 ) -> Drive:
     """The walker's poses at ``frames`` frames ``frame_period`` s apart, starting at :data:`PREROLL`
-    on the road; ``height`` (m) overrides the drawn hand height (:func:`hand_height`)."""
+    on the road (indoors: on the scene's own walkway, and no look-around turn while rounding a corner
+    or turning round); ``height`` (m) overrides the drawn hand height (:func:`hand_height`)."""
     times = np.arange(frames) * frame_period
     fine, gate, pace = _gait(seed, times)
     walked = _integral(pace(fine) * gate(fine))
@@ -71,8 +73,15 @@ def make_walk(
     phase = np.interp(times, fine, step_phase)
     walking = gate(times)
 
-    stations, xy, path_heading = _path(scene, np.random.default_rng([seed, 22]), distance)
-    yaw = path_heading + _look_around(np.random.default_rng([seed, 23]), times[-1])(times)
+    if isinstance(scene, IndoorScene):
+        stations, xy, path_heading = scene.walk(distance)
+        cornering = fine[scene.turning(walked)]
+        ground = scene.ground_height(xy)
+    else:
+        stations, xy, path_heading = _path(scene, np.random.default_rng([seed, 22]), distance)
+        cornering = None
+        ground = scene.layout.ground_height(xy)
+    yaw = path_heading + _look_around(np.random.default_rng([seed, 23]), times[-1], cornering)(times)
     tilt_rng = np.random.default_rng([seed, 24])
     pitch = _soft_limit(_wander(tilt_rng, mean=(-8.0, 3.0), amplitude=(2.0, 5.0))(times))
     roll = _soft_limit(_wander(tilt_rng, mean=(-3.0, 3.0), amplitude=(2.0, 5.0))(times))
@@ -87,7 +96,6 @@ def make_walk(
     poses[:, :3, :3] = Rotation.from_euler(
         "ZYX", np.column_stack([yaw, np.radians(pitch), np.radians(roll)])
     ).as_matrix()
-    ground = scene.layout.ground_height(xy)
     z = ground + hand + drift + bob * walking * np.sin(phase)
     poses[:, :3, 3] = np.column_stack([xy, z])
     return Drive(stations, pace(times) * walking, poses)
@@ -182,9 +190,13 @@ def _path(
     return np.interp(distance, along, stations), where, np.interp(distance, along, heading)
 
 
-def _look_around(rng: np.random.Generator, duration: float) -> Signal:
+def _look_around(
+    rng: np.random.Generator, duration: float, quiet: NDArray[np.float64] | None = None
+) -> Signal:
     """Yaw (rad) added to the path's heading: every 3-10 s a turn of 30-90 deg to one side at up to
-    40-75 deg/s, a look of 0.5-3 s, and a turn back; plus a slow wander of a few degrees."""
+    40-75 deg/s, a look of 0.5-3 s, and a turn back; plus a slow wander of a few degrees. A turn
+    under way within half a second of any of the ``quiet`` times (s: the walker rounding a corner)
+    is left out; the draws stay the same."""
     wander = _wander(rng, mean=(0.0, 0.0), amplitude=(0.5, 1.3))  # first: the turns' count varies
     turns = []  # (start, angle, seconds away, seconds held, seconds back)
     start = rng.uniform(*LOOK_GAP)
@@ -195,6 +207,13 @@ def _look_around(rng: np.random.Generator, duration: float) -> Signal:
         back = 0.5 * math.pi * abs(angle) / math.radians(rng.uniform(*LOOK_RATE))
         turns.append((start, angle, away, hold, back))
         start += away + hold + back + rng.uniform(*LOOK_GAP)
+    if quiet is not None and len(quiet):
+        spans = [(a - 0.5, a + away + hold + back + 0.5) for a, _, away, hold, back in turns]
+        turns = [
+            turn
+            for turn, (a, b) in zip(turns, spans, strict=True)
+            if np.searchsorted(quiet, a) == np.searchsorted(quiet, b)  # no quiet time within
+        ]
 
     def look(t: NDArray[np.float64]) -> NDArray[np.float64]:
         yaw = np.radians(wander(t))

@@ -1,9 +1,10 @@
 """The LiDAR: sensor models (scan patterns, noise, ranges) and the ray caster that scans a scene mesh
 with one of them.
 
-The default imitates KITTI's HDL-64E; presets (:data:`SENSOR_MODELS`) add the HDL-32E, VLP-16 and
-OS1-128, so training data covers more than one beam pattern, and two solid-state Livox-like scanners
-whose non-repetitive patterns never sample the scene the same way twice:
+The default imitates KITTI's HDL-64E; presets (:data:`SENSOR_MODELS`) add the HDL-32E, VLP-16,
+OS1-128 and OS0-128 (a 90 deg field for indoor walks), so training data covers more than one beam
+pattern, and two solid-state Livox-like scanners whose non-repetitive patterns never sample the scene
+the same way twice:
 
 - ``avia`` (Livox Avia-like): a forward-looking rosette, 70.4 deg x 77.2 deg, 240,000 points/s;
 - ``mid360`` (Livox Mid-360-like): 360 deg x 59 deg (-7 to +52 deg elevation), 200,000 points/s.
@@ -28,9 +29,11 @@ from vcr_odom.geometry import rotation_from_euler_zyx
 from vcr_odom.settings import Settings
 from vcr_odom.synth.mesh import MeshPart, Surface
 
-SPINNING_MODELS = ("hdl64", "hdl32", "vlp16", "os128")
-"""The spinning presets: what :meth:`~vcr_odom.synth.SynthSequence.varied` draws from (adding a name
-here would change every varied drive)."""
+SPINNING_MODELS = ("hdl64", "hdl32", "vlp16", "os128", "os0")
+"""The spinning presets."""
+VARIED_MODELS = ("hdl64", "hdl32", "vlp16", "os128")
+"""The spinning presets :meth:`~vcr_odom.synth.SynthSequence.varied` draws from: fixed, since adding
+a name would change every varied drive (and the training data made from them)."""
 SOLID_STATE_MODELS = ("avia", "mid360")
 """The solid-state presets, non-repetitive Livox-like scanners."""
 SENSOR_MODELS = SPINNING_MODELS + SOLID_STATE_MODELS
@@ -305,6 +308,12 @@ _SENSOR_PRESETS: dict[str, dict[str, Any]] = {
     "os128": {
         "beam_blocks": ((22.5, -22.5, 128),), "azimuth_steps": 1024, "range_noise": 0.03,
         "min_range": 0.8, "max_range": 120.0, "azimuth_spread": 0.0,
+    },
+    # Ouster OS0-128 in its 1024x10 mode: the OS1-128's noise and reflectance, a 90 deg vertical field
+    # (-45 to +45 deg: floor and ceiling close by indoors), 0.3-50 m.
+    "os0": {
+        "beam_blocks": ((45.0, -45.0, 128),), "azimuth_steps": 1024, "range_noise": 0.03,
+        "min_range": 0.3, "max_range": 50.0, "azimuth_spread": 0.0,
     },
     # Livox Avia, non-repetitive (circular) scan: 70.4 x 77.2 deg, 6 lasers, 240,000 points/s (first
     # return), 2 cm range precision (1 sigma at 20 m), 1 m blind zone; detection 190 m at 10 %

@@ -20,13 +20,14 @@ from vcr_odom.settings import Settings
 from vcr_odom.synth.calibration import KITTI_TR
 from vcr_odom.synth.drive import Drive, drive_travel, make_drive
 from vcr_odom.synth.handheld import MAX_SPEED, hand_height, make_walk, walk_travel
+from vcr_odom.synth.indoor import INDOOR_ROUTES, INDOOR_SCENE, MAX_HAND_HEIGHT, IndoorScene
 from vcr_odom.synth.keyframes import KEYFRAME_ANGLE, select_keyframes, thin_voxels
 from vcr_odom.synth.road import Road
 from vcr_odom.synth.routes import Route, build_route
 from vcr_odom.synth.scene import StreetScene
 from vcr_odom.synth.sensor import (
     SENSOR_MODELS,
-    SPINNING_MODELS,
+    VARIED_MODELS,
     LidarSimulator,
     MountingHeight,
     SensorConfig,
@@ -37,12 +38,15 @@ FRAME_PERIOD = 0.1
 """Seconds between frames by default: the HDL-64E spins at 10 Hz in KITTI."""
 HEIGHT_RANGE = (1.5, 2.1)
 """Mounting heights (m) :meth:`SynthSequence.varied` draws from: low hatchbacks to vans and roof racks."""
+SCENES = (*SCENE_STYLES, INDOOR_SCENE)
+"""Every ``--scene``: the street styles (:data:`~vcr_odom.synth.styles.SCENE_STYLES`, what
+:meth:`SynthSequence.varied` draws from) and the indoor floor (:mod:`~vcr_odom.synth.indoor`)."""
 
 
 class SynthConfig(Settings):
-    """What a synthetic sequence is: its length, seed, speed, sensor, street style, stops, frame rate,
-    motion (a car or a walker with a handheld scanner), route (an open street, or one that comes
-    back) and what of it is kept (keyframes, thinning).
+    """What a synthetic sequence is: its length, seed, speed, sensor, scene (a street style, or the
+    indoor floor), stops, frame rate, motion (a car or a walker with a handheld scanner), route (an
+    open street, or one that comes back) and what of it is kept (keyframes, thinning).
 
     The same configuration always gives byte-identical frames and poses (shipped weights and training
     caches were made from them; the new fields' defaults keep them so). ``sensor`` may be given as a
@@ -68,14 +72,20 @@ class SynthConfig(Settings):
     )
     sensor: SensorConfig = Field(default_factory=SensorConfig)
     height: MountingHeight | None = None
-    scene: str = "suburban"
+    scene: str = Field(
+        default="suburban",
+        description="suburban, avenue, highway, oldtown: street styles. indoor: one floor of a building, "
+        "a ring of corridors (2-3.5 m wide, 2.6-3.5 m ceilings) round a core of rooms, with doors, niches, "
+        "columns, clutter and a hall or two; walked only (motion handheld) on route loop or return.",
+    )
     stops: bool = False
     frame_period: float = Field(default=FRAME_PERIOD, ge=0.02, le=1.0)
     """Seconds between frames: 1-50 Hz."""
     window: int = Field(default=200, ge=1)
     motion: Literal["car", "handheld"] = Field(
         default="car",
-        description="car: a car drives the road. handheld: a person walks beside the road (1.0-1.6 m/s, "
+        description="car: a car drives the road. handheld: a person walks beside the road, or the corridors "
+        "of the indoor scene (1.0-1.6 m/s, "
         "pauses, step bobbing, tilts up to +-15 deg, look-around turns up to 90 deg/s) holding the "
         "sensor 1.2-1.6 m high (--height sets it).",
     )
@@ -110,7 +120,9 @@ class SynthConfig(Settings):
         "roadside repeats exactly every 30-60 m, driven once (look-alike places, no revisit). Loops "
         "(250-1500 m round), figure eights (400-2000 m) and returns are sized to the frames and speed: "
         "at 10 m/s and 10 Hz the first revisit comes after about 350 frames on a loop or figure eight "
-        "and 200 on a return; a walk needs about 2500 and 1000.",
+        "and 200 on a return; a walk needs about 2500 and 1000. In the indoor scene: loop goes round its "
+        "corridor ring about 1.25 times (40-250 m round), return walks out along the corridors, turns "
+        "round in a hall and walks back past the start; both are sized to the walk.",
     )
 
     @field_validator("sensor", mode="before")
@@ -127,8 +139,8 @@ class SynthConfig(Settings):
     @field_validator("scene")
     @classmethod
     def _known_scene(cls, value: str) -> str:
-        if value not in SCENE_STYLES:
-            raise ValueError(f"must be one of {', '.join(SCENE_STYLES)}")
+        if value not in SCENES:
+            raise ValueError(f"must be one of {', '.join(SCENES)}")
         return value
 
     @model_validator(mode="after")
@@ -144,6 +156,28 @@ class SynthConfig(Settings):
                 raise ValueError(
                     "stops: applies to motion 'car' only; a handheld walk pauses now and then by itself"
                 )
+        return self
+
+    @model_validator(mode="after")
+    def _indoor_is_walked_round_its_corridors(self) -> SynthConfig:
+        if self.scene != INDOOR_SCENE:
+            return self
+        if self.motion != "handheld":
+            raise ValueError(
+                f"motion: the indoor scene is walked, not driven: use motion 'handheld' (--motion handheld); "
+                f"got {self.motion!r}"
+            )
+        if self.route not in INDOOR_ROUTES:
+            raise ValueError(
+                f"route: the indoor scene is walked on route {' or '.join(map(repr, INDOOR_ROUTES))} "
+                f"(--route loop: round the corridor ring; --route return: out, round in a hall and back); "
+                f"got {self.route!r}"
+            )
+        if self.height is not None and self.height > MAX_HAND_HEIGHT:
+            raise ValueError(
+                f"height: at most {MAX_HAND_HEIGHT:g} m in the indoor scene (under its beams and ceilings); "
+                f"got {self.height:g}"
+            )
         return self
 
     @property
@@ -209,7 +243,7 @@ class SynthSequence:
         speeds = {"highway": (18.0, 28.0), "avenue": (8.0, 16.0), "oldtown": (3.0, 8.0)}
         # Drawn in this order (speed, sensor, height, stops): the same seed gives the same drive.
         speed = float(rng.uniform(*speeds.get(scene, (6.0, 14.0))))
-        sensor = str(rng.choice(SPINNING_MODELS))  # not SENSOR_MODELS: the same seeds, the same drives
+        sensor = str(rng.choice(VARIED_MODELS))  # not SENSOR_MODELS: the same seeds, the same drives
         height = float(rng.uniform(*HEIGHT_RANGE))
         stops = scene != "highway" and bool(rng.random() < 0.5)
         return cls(
@@ -224,7 +258,10 @@ class SynthSequence:
         )
 
     @cached_property
-    def scene(self) -> StreetScene:
+    def scene(self) -> StreetScene | IndoorScene:
+        if self.scene_style == INDOOR_SCENE:
+            travel = walk_travel(frames=self.frames, seed=self.seed, frame_period=self.frame_period)
+            return IndoorScene(self.seed, self.route, travel)
         # Road long enough for the fastest possible drive plus what the sensor sees beyond its end.
         fastest = self.speed * 1.5 if self.motion == "car" else MAX_SPEED
         reach = self.frames * self.frame_period * fastest + self.sensor.max_range + 60.0
@@ -257,6 +294,7 @@ class SynthSequence:
                 seed=self.seed,
                 frame_period=self.frame_period,
             )
+        assert isinstance(self.scene, StreetScene)  # SynthConfig keeps cars out of the indoor scene
         return make_drive(
             self.scene,
             frames=self.frames,
