@@ -18,7 +18,8 @@ from vcr_odom.evaluation.revisits import true_revisits
 from vcr_odom.geometry import invert, rotation_angle, transform_points
 from vcr_odom.io import read_kitti_poses
 from vcr_odom.synth import IndoorScene, SensorConfig, SynthConfig, SynthSequence, generate_sequence
-from vcr_odom.synth.indoor import CEILING_HEIGHT, LAP_LENGTH
+from vcr_odom.synth.floorplan import CEILING_HEIGHT
+from vcr_odom.synth.indoor import LAP_LENGTH
 from vcr_odom.synth.sensor import SPINNING_MODELS
 
 INDOOR = {"scene": "indoor", "motion": "handheld", "route": "loop", "frame_period": 0.5}
@@ -73,7 +74,7 @@ def test_a_return_comes_back_past_its_start_the_other_way() -> None:
     pairs = true_revisits(sequence, radius_m=2.0, min_path_m=30.0)
     assert pairs and min(p.target for p in pairs) < 5
     assert np.median([p.heading_deg for p in pairs]) > 135.0
-    assert any(h.turn for h in sequence.scene.halls)
+    assert any(h.turn for h in sequence.scene.plan.halls)
 
 
 def test_same_seed_same_floor_and_walk_and_the_floor_is_bounded() -> None:

@@ -16,9 +16,10 @@ Modules, from the ground up: :mod:`~vcr_odom.synth.mesh` (triangles and primitiv
 (streets that come back: :mod:`~vcr_odom.synth.paths`, :mod:`~vcr_odom.synth.closed_roads`,
 :mod:`~vcr_odom.synth.turnaround`, :mod:`~vcr_odom.synth.repeating`), :mod:`~vcr_odom.synth.sensor`
 (sensor models and ray casting), :mod:`~vcr_odom.synth.drive` (the car's path and speeds),
-:mod:`~vcr_odom.synth.handheld` (a walk with a handheld scanner), :mod:`~vcr_odom.synth.corridors` and
-:mod:`~vcr_odom.synth.indoor` (the indoor floor and the walker's track through it), :mod:`~vcr_odom.synth.keyframes`
-(keyframes and voxel thinning), :mod:`~vcr_odom.synth.sequence` (the sequence) and
+:mod:`~vcr_odom.synth.handheld` (a walk with a handheld scanner), :mod:`~vcr_odom.synth.indoor`
+(the indoor floor: :mod:`~vcr_odom.synth.corridors`, the corridor ring and the walker's track;
+:mod:`~vcr_odom.synth.floorplan`, walls, halls and rooms; :mod:`~vcr_odom.synth.fittings`, their
+meshes), :mod:`~vcr_odom.synth.keyframes` (keyframes and voxel thinning), :mod:`~vcr_odom.synth.sequence` (the sequence) and
 :mod:`~vcr_odom.synth.kitti_layout` (writing it).
 """
 

@@ -31,6 +31,10 @@ MAX_RADIUS = 2.5
 """Largest corner radius (m) of the track, however wide the corridors."""
 MIN_SIDE = 7.0
 """Shortest side (m) of the ring's centre line: room for two rounded corners and a straight."""
+TURN_RADIUS = (1.3, 1.6)
+"""Radius (m) of the half turn a walk makes to turn round (:func:`u_turn`)."""
+ASIDE_RADIUS = 2.5
+"""Radius (m) of the two arcs that take a turning walker aside first (:func:`u_turn`)."""
 
 
 @dataclass(frozen=True)
@@ -223,6 +227,17 @@ class Track:
                 part[:, 2] += 2.0 * math.pi * round((end - part[0, 2]) / (2.0 * math.pi))
             pieces.extend(part)
         return Track(np.array(pieces))
+
+
+def u_turn(start: ArrayLike, heading: float, radius: float) -> Track:
+    """Turning round from ``start``, heading ``heading``: aside to the right by two radii over two
+    arcs of :data:`ASIDE_RADIUS`, then a half turn left of ``radius`` that ends on the line it left,
+    heading the other way, a few metres further on (a walker turning round in a hall)."""
+    theta = math.acos(1.0 - radius / ASIDE_RADIUS)
+    pieces = [(*np.asarray(start, dtype=np.float64), heading, ASIDE_RADIUS * theta, -1.0 / ASIDE_RADIUS)]
+    for length, kappa in ((ASIDE_RADIUS * theta, 1.0 / ASIDE_RADIUS), (math.pi * radius, 1.0 / radius)):
+        pieces.append((*_piece_end(np.array(pieces[-1])), length, kappa))
+    return Track(np.array(pieces))
 
 
 def _piece_end(piece: FloatArray) -> tuple[float, float, float]:
