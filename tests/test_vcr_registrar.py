@@ -84,6 +84,25 @@ def test_a_sparse_frame_runs_on_the_points_it_has_not_on_repeated_ones(weights: 
         np.testing.assert_allclose(together.transform, single.transform, atol=1e-5)
 
 
+def test_a_sparse_network_input_is_encoded_as_it_is(weights: Path) -> None:
+    """Loop verification turns a node's network input and encodes it: a cloud under N points must not
+    be pre-processed again (its warnings reached the console once per candidate, its points reshuffled)."""
+    import warnings
+
+    from vcr_odom.errors import DataWarning
+
+    registrar = VcrRegistrar(weights, "cpu")
+    sparse = np.random.default_rng(4).uniform(-20, 20, size=(90, 3)).astype(np.float32)  # N = 128
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=".*ground")  # the one pre-processing: random, no ground
+        network_input = registrar.network_input(sparse)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", DataWarning)
+        (frame,) = registrar.encode_inputs([network_input])
+    np.testing.assert_array_equal(frame.points[0].numpy(), network_input)
+    assert frame.distinct_points == 90
+
+
 def test_the_point_count_can_be_chosen_at_inference_and_must_exceed_k(
     weights: Path, synth: SynthSequence
 ) -> None:

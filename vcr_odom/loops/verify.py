@@ -109,7 +109,8 @@ class LoopVerifier:
         target_frame, target_cloud = self._target(candidate.target, target)
         turn = make_transform(candidate.prior[:3, :3], np.zeros(3))
         turned = (self._network_points(source) @ turn[:3, :3].T).astype(np.float32)
-        network = self.network.register(self.network.prepare(turned), target_frame)
+        (source_frame,) = self.network.encode_inputs([turned])
+        network = self.network.register(source_frame, target_frame)
         source_cloud = _o3d_cloud(source.cloud)
         starts = {"network": network.transform @ turn, "odometry": candidate.prior}
         fits = {name: _polish(source_cloud, target_cloud, start) for name, start in starts.items()}
@@ -206,7 +207,8 @@ class LoopVerifier:
     def _target(self, index: int, node: Node) -> tuple[VcrFrame, o3d.geometry.PointCloud]:
         if index not in self._targets:
             points = self._network_points(node)
-            self._targets[index] = (self.network.prepare(points), _o3d_cloud(node.cloud))
+            (frame,) = self.network.encode_inputs([points])
+            self._targets[index] = (frame, _o3d_cloud(node.cloud))
         return self._targets[index]
 
 

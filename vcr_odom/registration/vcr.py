@@ -136,7 +136,12 @@ class VcrRegistrar:
         """Pre-process each frame (CPU), then encode and self-attend them in one forward pass per point
         count (all but a sparse frame have N): done once per frame, not once per pair (a frame is the
         source of one pair, the target of the next)."""
-        inputs = [self.network_input(points) for points in frames]
+        return self.encode_inputs([self.network_input(points) for points in frames])
+
+    @torch.inference_mode()
+    def encode_inputs(self, inputs: Sequence[NDArray[np.float32]]) -> list[VcrFrame]:
+        """Encode clouds that already are the network's input (:meth:`network_input`'s, perhaps turned):
+        a sparse one, fewer than N points, would otherwise be pre-processed a second time."""
         prepared: list[VcrFrame | None] = [None] * len(inputs)
         for group in _same_size(inputs, key=len):  # one batch per point count (a sparse frame has fewer)
             tensor = torch.as_tensor(
