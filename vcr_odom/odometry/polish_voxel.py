@@ -4,8 +4,11 @@ kiss-icp derives its voxel from the maximum range (``max_range / 100``: 1 m at 1
 spinning scans, where a 1 m grid still leaves its registration about 2,000 points. A solid-state scan
 or a keyframe cloud voxel-thinned by a SLAM system leaves it 500-1,300, and the polish then registers
 few, coarse points: there a finer grid cuts the polish's error (docs/benchmarks.md, "The polish
-voxel"). A sparse spinning scan (16 beams) keeps kiss-icp's voxel (:func:`ring_structured`). The voxel
-is chosen once, on the first frame, because kiss-icp's local map needs one grid for the whole run.
+voxel"). A sparse spinning scan (16 beams) keeps kiss-icp's voxel (:func:`ring_structured`). The
+configured range also says nothing of the scene: indoors, where the scan reaches 10 m, a 1 m grid leaves
+a corridor two cells wide, so the voxel also shrinks with the range the scan actually reaches
+(:func:`reach_voxel`). The voxel is chosen once, on the first frame, because kiss-icp's local map needs
+one grid for the whole run.
 """
 
 from __future__ import annotations
@@ -68,17 +71,58 @@ def median_spacing(points: np.ndarray) -> float:
     return float(np.median(distances[:, 1]))
 
 
+REACH_PERCENTILE = 99.0
+"""The scan's reach: this percentile of its points' ranges (the farthest few are stray returns)."""
+
+ROOM_REACH = 15.0
+"""A scan reaching this far or less (m) was taken in rooms and corridors (the synthetic OS0 floor's first
+frames: 10.6-11.7 m, at least 7.4 m on any frame); its voxel is the reach over :data:`ROOM_CELLS`."""
+
+ROOM_CELLS = 60.0
+"""Cells across a room-scale reach (0.2 m at 12 m). On the indoor tuning walk (seed 901, reach 11.7 m) a
+1 m grid overestimated the path by 13 % (ATE 2.45 m); 40, 50, 60 and 80 cells gave ATE 0.46, 0.26, 0.14
+and 0.14 m, 80 at 1.6 times 60's time (docs/benchmarks.md, "The polish voxel indoors")."""
+
+STREET_REACH = 30.0
+"""A scan reaching this far or more (m) keeps kiss-icp's voxel: every street drive in hand reaches 34 m
+or more on its first frame (the KITTI sample, the synthetic street sensors); between the two reaches
+the voxel is blended linearly, so a scene near either gets nearly the same grid."""
+
+MIN_REACH_VOXEL = 0.1
+"""Never finer than this (m), however close the walls: the polish's cost grows as the cube of the grid."""
+
+
+def reach(points: np.ndarray) -> float:
+    """How far the scan reaches: :data:`REACH_PERCENTILE` of its points' ranges from the sensor."""
+    return float(np.percentile(np.linalg.norm(points, axis=1), REACH_PERCENTILE))
+
+
+def reach_voxel(points: np.ndarray, voxel: float) -> float:
+    """``voxel`` (kiss-icp's) for a scan reaching a street's distance, reach / :data:`ROOM_CELLS` for
+    one in rooms, blended between; never coarser than ``voxel`` nor finer than :data:`MIN_REACH_VOXEL`."""
+    knots = [ROOM_REACH, STREET_REACH]
+    scaled = float(np.interp(reach(points), [0.0, *knots], [0.0, ROOM_REACH / ROOM_CELLS, voxel]))
+    return min(voxel, max(MIN_REACH_VOXEL, scaled))
+
+
 def density_voxel(frame: np.ndarray, config: KISSConfig) -> float:
-    """kiss-icp's own voxel for a frame dense enough for it or a spinning scan's rings; for another
-    sparse one (solid-state, thinned keyframes) the largest voxel on the
-    ladder (``VOXEL_STEP``) that leaves :data:`TARGET_SOURCE_POINTS`, no finer than the floors
-    (:data:`MIN_VOXEL_FRACTION`, :data:`SPACING_FACTOR`)."""
+    """kiss-icp's own voxel, made finer for a scan of a small scene (:func:`reach_voxel`), for a frame
+    dense enough for it or a spinning scan's rings; for another sparse one (solid-state, thinned
+    keyframes) the largest voxel on the ladder (``VOXEL_STEP``) that leaves :data:`TARGET_SOURCE_POINTS`,
+    no finer than the floors (:data:`MIN_VOXEL_FRACTION`, :data:`SPACING_FACTOR`), nor coarser than
+    the small scene's."""
     voxel = float(config.mapping.voxel_size)
     cropped = get_preprocessor(config).preprocess(frame, np.array([]), np.eye(4))
-    if len(cropped) == 0 or source_points(cropped, voxel) >= SPARSE_SOURCE_POINTS:
+    if len(cropped) == 0:
         return voxel
-    if ring_structured(cropped):
-        return voxel
+    scene_voxel = reach_voxel(cropped, voxel)
+    if source_points(cropped, voxel) >= SPARSE_SOURCE_POINTS or ring_structured(cropped):
+        return scene_voxel
+    return min(scene_voxel, _sparse_voxel(cropped, voxel))
+
+
+def _sparse_voxel(cropped: np.ndarray, voxel: float) -> float:
+    """The largest voxel on the ladder from ``voxel`` that leaves :data:`TARGET_SOURCE_POINTS`."""
     floor = max(voxel * MIN_VOXEL_FRACTION, SPACING_FACTOR * median_spacing(cropped))
     while voxel * VOXEL_STEP >= floor:
         voxel *= VOXEL_STEP
