@@ -86,7 +86,7 @@ def test_a_sparse_frame_runs_on_the_points_it_has_not_on_repeated_ones(weights: 
 
 def test_a_sparse_network_input_is_encoded_as_it_is(weights: Path) -> None:
     """Loop verification turns a node's network input and encodes it: a cloud under N points must not
-    be pre-processed again (its warnings reached the console once per candidate, its points reshuffled)."""
+    be pre-processed again (its two warnings reached the console once per candidate)."""
     import warnings
 
     from vcr_odom.errors import DataWarning
