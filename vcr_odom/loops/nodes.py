@@ -20,6 +20,7 @@ from numpy.typing import NDArray
 from vcr_odom.data.base import Points
 from vcr_odom.geometry import Transform, invert, rotation_angle
 from vcr_odom.loops.ground import ground_normal
+from vcr_odom.odometry.polish_voxel import reach_voxel
 from vcr_odom.registration.open3d_icp import prepare_cloud
 
 NODE_SPACING_M = 3.0
@@ -27,15 +28,17 @@ NODE_SPACING_DEG = 20.0
 """A new node where the sensor moved this far or turned this much since the last one."""
 CLOUD_VOXEL_M = 1.0
 CLOUD_MAX_RANGE_M = 60.0
-"""The node cloud kept for the polish: kiss-icp's voxel for a 100 m scanner, far points dropped."""
+"""The node cloud kept for the polish: kiss-icp's voxel for a 100 m scanner, far points dropped; a
+scan of rooms gets a finer one (:func:`node_cloud_voxel`)."""
 CLOUD_INPUT_POINTS = 30_000
 
 
 @dataclass
 class Node:
     """One keyframe: ``position`` in the run's frame list, ``pose`` the odometry's (frame 0 world),
-    ``path_m`` the distance driven from the first frame, ``cloud`` the coarse voxel cloud (float32 xyz),
-    ``ground`` the ground's upward normal in the node's frame (None where none was seen)."""
+    ``path_m`` the distance driven from the first frame, ``cloud`` the coarse voxel cloud (float32 xyz)
+    on a grid of ``cloud_voxel`` m, ``ground`` the ground's upward normal in the node's frame (None
+    where none was seen)."""
 
     position: int
     frame_index: int
@@ -43,6 +46,7 @@ class Node:
     path_m: float
     cloud: NDArray[np.float32]
     ground: NDArray[np.float64] | None = None
+    cloud_voxel: float = CLOUD_VOXEL_M
 
     @property
     def nbytes(self) -> int:
@@ -61,13 +65,29 @@ def voxel_cloud(
     return np.asarray(cloud.points, dtype=np.float32)
 
 
+def node_cloud_voxel(points: Points) -> float:
+    """:data:`CLOUD_VOXEL_M` for a street scan; for a scan of rooms the finer grid the polish takes
+    there (:func:`~vcr_odom.odometry.polish_voxel.reach_voxel`): on 1 m voxels of a corridor, with
+    normals from 2.5 m around, loop fits turned by 1-6 deg (:data:`~vcr_odom.loops.verify.MIN_DISTANCE_SCALE`)."""
+    xyz = np.asarray(points, dtype=np.float64)[:, :3]
+    xyz = xyz[np.isfinite(xyz).all(axis=1)]
+    return CLOUD_VOXEL_M if len(xyz) == 0 else reach_voxel(xyz, CLOUD_VOXEL_M)
+
+
 class NodeRecorder:
     """The odometry's per-frame hook: keeps every frame's pose and makes a node of the frames that
     moved or turned enough since the last node (the first frame always; :meth:`finish` adds the last).
-
+    ``cloud_voxel``: the nodes' grid; None chooses it on the first frame (:func:`node_cloud_voxel`),
+    one grid for the run, because the verification's distances follow it.
     """
 
-    def __init__(self, spacing_m: float = NODE_SPACING_M, spacing_deg: float = NODE_SPACING_DEG) -> None:
+    def __init__(
+        self,
+        spacing_m: float = NODE_SPACING_M,
+        spacing_deg: float = NODE_SPACING_DEG,
+        cloud_voxel: float | None = None,
+    ) -> None:
+        self.cloud_voxel = cloud_voxel
         self.spacing_m = spacing_m
         self.spacing_rad = math.radians(spacing_deg)
         self.nodes: list[Node] = []
@@ -106,13 +126,16 @@ class NodeRecorder:
         return moved >= self.spacing_m or float(rotation_angle(motion[:3, :3])) >= self.spacing_rad
 
     def _add(self, position: int, points: Points) -> None:
+        if self.cloud_voxel is None:
+            self.cloud_voxel = node_cloud_voxel(points)
         self.nodes.append(
             Node(
                 position=position,
                 frame_index=self.frame_indices[position],
                 pose=self.poses[position],
                 path_m=self.path[position],
-                cloud=voxel_cloud(points),
+                cloud=voxel_cloud(points, self.cloud_voxel),
                 ground=ground_normal(points),
+                cloud_voxel=self.cloud_voxel,
             )
         )

@@ -226,7 +226,7 @@ def map_and_save(
             unit / "metrics.json",
             {
                 "run": run_summary(run),
-                "loops": _loop_summary(decisions) | {"ground_up": up},
+                "loops": _loop_summary(decisions) | {"ground_up": up, "node_voxel_m": recorder.cloud_voxel},
                 "seconds": phase.seconds,
                 "memory": memory,
                 **(report.to_dict() if report is not None else {"ground_truth": None}),

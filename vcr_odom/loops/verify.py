@@ -4,7 +4,9 @@ Registration: VCR-Net on the two nodes' clouds, the later one turned by the odom
 relative rotation first (the network is trained on headings within +-30 deg; the odometry's heading
 drift is a few degrees, so any revisit heading, opposite directions included, comes within reach).
 The polish: point-to-plane ICP on the nodes' 1 m voxel clouds, from the network's estimate and from
-the odometry's, coarse then fine; the better fit wins.
+the odometry's, coarse then fine; the better fit wins. Nodes of rooms keep a finer grid
+(:func:`~vcr_odom.loops.nodes.node_cloud_voxel`), and the distances below shrink with it (``scale``),
+down to :data:`MIN_DISTANCE_SCALE`.
 
 Acceptance, all of: the clouds overlap (``fitness``) and fit (``inlier_rmse``); the correction the
 loop asks of the odometry is within the drift the odometry may have gathered between the visits
@@ -32,7 +34,8 @@ from vcr_odom.registration.vcr import VcrFrame, VcrRegistrar
 
 MIN_FITNESS = 0.5
 MAX_INLIER_RMSE_M = 0.6
-"""Overlap and fit at the fine stage's 1 m correspondence distance on 1 m voxels. Real KITTI frames
+"""Overlap and fit at the fine stage's 1 m correspondence distance on 1 m voxels (metres scale with the
+node grid). Real KITTI frames
 5-10 m apart: fitness 0.84-0.91, RMSE 0.43-0.47 m (1 m voxels quantise); the same frames aligned
 30 m off along the street, or turned round: fitness 0.29-0.39. Two 1 m voxelisations of the same
 surface are about 0.5-0.6 m apart however well aligned (Mid-360 passages measured to 1-4 cm fit at
@@ -49,6 +52,14 @@ against 0.56); the closest true loop with two such starts on seeds 532-543 was 0
 PROBE_M, PROBE_RETURN_M, PROBE_FITNESS = 2.0, 0.5, 0.05
 """The degeneracy probe: starts 2 m off along the weakest direction must end within 0.5 m, unless
 their fit is worse by more than 0.05."""
+MIN_DISTANCE_SCALE = 0.5
+"""The distances above (correspondences, RMSE cap, probe, ambiguity) follow a finer node grid down to
+half their street values, no further: the coarse stage must still cover the network's error, which does
+not shrink with the rooms, and the probe must push past where ICP comes back. On synthetic indoor walks
+(node pairs 3-6 m apart and 40-75 deg turned, the prior 1.5 m / 4 deg off; seeds 902 and 911) accepted
+fits off by more than 0.2 m or 1 deg: 1 m grid 7 of 14 and 17 of 25; the reach's grid with distances
+scaled all the way (0.18 m grid) 0 of 12 and 3 of 13, slid 1.4-5.7 m along corridors; at half, 0 of 15
+and 0 of 24 (docs/benchmarks.md, "Loops indoors")."""
 EFFECTIVE_POINTS = 50.0
 """Independent points behind a loop's uncertainty: voxel points are correlated, so the ICP Hessian of
 all of them would make a loop ~100x more certain than the odometry it corrects."""
@@ -84,9 +95,9 @@ class LoopDecision:
         }
 
 
-def _o3d_cloud(points: NDArray[np.float32]) -> o3d.geometry.PointCloud:
+def _o3d_cloud(points: NDArray[np.float32], voxel: float) -> o3d.geometry.PointCloud:
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points.astype(np.float64)))
-    cloud.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=2.5 * CLOUD_VOXEL_M, max_nn=20))
+    cloud.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=2.5 * voxel, max_nn=20))
     return cloud
 
 
@@ -106,14 +117,15 @@ class LoopVerifier:
             decision.reason = f"rejected: too few points ({len(source.cloud)}, {len(target.cloud)})"
             return decision
         kept_before = self.ground_kept
+        scale = max(source.cloud_voxel / CLOUD_VOXEL_M, MIN_DISTANCE_SCALE)
         target_frame, target_cloud = self._target(candidate.target, target)
         turn = make_transform(candidate.prior[:3, :3], np.zeros(3))
         turned = (self._network_points(source) @ turn[:3, :3].T).astype(np.float32)
         (source_frame,) = self.network.encode_inputs([turned])
         network = self.network.register(source_frame, target_frame)
-        source_cloud = _o3d_cloud(source.cloud)
+        source_cloud = _o3d_cloud(source.cloud, source.cloud_voxel)
         starts = {"network": network.transform @ turn, "odometry": candidate.prior}
-        fits = {name: _polish(source_cloud, target_cloud, start) for name, start in starts.items()}
+        fits = {name: _polish(source_cloud, target_cloud, start, scale) for name, start in starts.items()}
         best = max(fits, key=lambda name: fits[name].fitness)
         fit = fits[best]
         measured = np.asarray(fit.transformation, dtype=np.float64).copy()
@@ -135,20 +147,20 @@ class LoopVerifier:
             "bound_deg": round(self.drift.rotation_bound_deg(candidate.path_m), 3),
             "network_input_kept_ground": self.ground_kept > kept_before,
         }
-        decision.reason = self._judge(decision, fit, other, apart)
+        decision.reason = self._judge(decision, fit, other, apart, scale)
         if decision.reason == "accepted":
-            decision.reason = self._probe(decision, source_cloud, target_cloud, fit)
+            decision.reason = self._probe(decision, source_cloud, target_cloud, fit, scale)
         decision.accepted = decision.reason == "accepted"
         if decision.accepted:
-            decision.information = _information(source_cloud, target_cloud, measured, fit.inlier_rmse)
+            decision.information = _information(source_cloud, target_cloud, measured, fit.inlier_rmse, scale)
         return decision
 
-    def _judge(self, decision: LoopDecision, fit: Any, other: Any, apart: Transform) -> str:
+    def _judge(self, decision: LoopDecision, fit: Any, other: Any, apart: Transform, scale: float) -> str:
         scores = decision.scores
         if fit.fitness < MIN_FITNESS:
             return f"rejected: overlap {fit.fitness:.2f} < {MIN_FITNESS}"
-        if fit.inlier_rmse > MAX_INLIER_RMSE_M:
-            return f"rejected: fit RMSE {fit.inlier_rmse:.2f} m > {MAX_INLIER_RMSE_M} m"
+        if fit.inlier_rmse > MAX_INLIER_RMSE_M * scale:
+            return f"rejected: fit RMSE {fit.inlier_rmse:.2f} m > {MAX_INLIER_RMSE_M * scale:.2f} m"
         if scores["correction_m"] > scores["bound_m"] or scores["correction_deg"] > scores["bound_deg"]:
             return (
                 f"rejected: asks the odometry for {scores['correction_m']:.2f} m / "
@@ -156,6 +168,7 @@ class LoopVerifier:
                 f"({scores['bound_m']:.2f} m / {scores['bound_deg']:.1f} deg)"
             )
         far_m, far_deg, close_fitness = AMBIGUITY
+        far_m *= scale
         apart_deg = math.degrees(float(rotation_angle(apart[:3, :3])))
         if (
             scores["starts_apart_m"] > far_m or apart_deg > far_deg
@@ -172,24 +185,25 @@ class LoopVerifier:
         source: o3d.geometry.PointCloud,
         target: o3d.geometry.PointCloud,
         fit: Any,
+        scale: float,
     ) -> str:
         """Starts pushed :data:`PROBE_M` both ways along the fit's weakest translation must come back:
         along a street seen by a narrow field of view, ICP slides as far as it is pushed, and a loop
         there would pin the map at a place the scans cannot tell apart."""
         measured = np.asarray(decision.measured)
-        direction = _weakest_translation(source, target, measured)
+        direction = _weakest_translation(source, target, measured, scale)
         worst = 0.0
         for sign in (1.0, -1.0):
             start = measured.copy()
-            start[:3, 3] += sign * PROBE_M * direction
-            ended = _polish(source, target, start)
+            start[:3, 3] += sign * PROBE_M * scale * direction
+            ended = _polish(source, target, start, scale)
             if ended.fitness >= fit.fitness - PROBE_FITNESS:
                 away = invert(np.asarray(ended.transformation)) @ measured
                 worst = max(worst, float(np.linalg.norm(away[:3, 3])))
         decision.scores["probe_m"] = round(worst, 3)
-        if worst > PROBE_RETURN_M:
+        if worst > PROBE_RETURN_M * scale:
             return (
-                f"rejected: degenerate: a start {PROBE_M:g} m along the weakest direction ends "
+                f"rejected: degenerate: a start {PROBE_M * scale:g} m along the weakest direction ends "
                 f"{worst:.2f} m away with as good a fit"
             )
         return "accepted"
@@ -208,12 +222,12 @@ class LoopVerifier:
         if index not in self._targets:
             points = self._network_points(node)
             (frame,) = self.network.encode_inputs([points])
-            self._targets[index] = (frame, _o3d_cloud(node.cloud))
+            self._targets[index] = (frame, _o3d_cloud(node.cloud, node.cloud_voxel))
         return self._targets[index]
 
 
 def _polish(
-    source: o3d.geometry.PointCloud, target: o3d.geometry.PointCloud, start: Transform
+    source: o3d.geometry.PointCloud, target: o3d.geometry.PointCloud, start: Transform, scale: float
 ) -> o3d.pipelines.registration.RegistrationResult:
     registration = o3d.pipelines.registration
     transform = np.asarray(start, dtype=np.float64)
@@ -222,7 +236,7 @@ def _polish(
         result = registration.registration_icp(
             source,
             target,
-            distance,
+            distance * scale,
             transform,
             registration.TransformationEstimationPointToPlane(),
             registration.ICPConvergenceCriteria(1e-6, 1e-6, iterations),
@@ -232,13 +246,13 @@ def _polish(
 
 
 def _weakest_translation(
-    source: o3d.geometry.PointCloud, target: o3d.geometry.PointCloud, transform: Transform
+    source: o3d.geometry.PointCloud, target: o3d.geometry.PointCloud, transform: Transform, scale: float
 ) -> NDArray[np.float64]:
     """The unit translation the fit constrains least (the translation block of the ICP Hessian with
     rotation eliminated: its eigenvector of the smallest eigenvalue), in the target frame."""
     hessian = np.asarray(
         o3d.pipelines.registration.get_information_matrix_from_point_clouds(
-            source, target, POLISH_STAGES[-1][0], transform
+            source, target, POLISH_STAGES[-1][0] * scale, transform
         )
     )
     rotation, cross, translation = hessian[:3, :3], hessian[:3, 3:], hessian[3:, 3:]
@@ -248,12 +262,16 @@ def _weakest_translation(
 
 
 def _information(
-    source: o3d.geometry.PointCloud, target: o3d.geometry.PointCloud, transform: Transform, rmse: float
+    source: o3d.geometry.PointCloud,
+    target: o3d.geometry.PointCloud,
+    transform: Transform,
+    rmse: float,
+    scale: float,
 ) -> NDArray[np.float64]:
     """The loop edge's information (open3d order: rotation, then translation): the ICP Hessian of the
     fit's geometry (a corridor is weak along it), scaled to :data:`EFFECTIVE_POINTS` points of
     the fit's own noise."""
-    distance = POLISH_STAGES[-1][0]
+    distance = POLISH_STAGES[-1][0] * scale
     hessian = o3d.pipelines.registration.get_information_matrix_from_point_clouds(
         source, target, distance, transform
     )
