@@ -34,13 +34,12 @@ from vcr_odom.registration.vcr import VcrFrame, VcrRegistrar
 
 MIN_FITNESS = 0.5
 MAX_INLIER_RMSE_M = 0.6
-"""Overlap and fit at the fine stage's 1 m correspondence distance on 1 m voxels (metres scale with the
-node grid). Real KITTI frames
-5-10 m apart: fitness 0.84-0.91, RMSE 0.43-0.47 m (1 m voxels quantise); the same frames aligned
-30 m off along the street, or turned round: fitness 0.29-0.39. Two 1 m voxelisations of the same
-surface are about 0.5-0.6 m apart however well aligned (Mid-360 passages measured to 1-4 cm fit at
-RMSE 0.55-0.60 m on tuning seed 541), so the RMSE only rejects what is worse than that; overlap, the
-drift bound and the two starts are what tell a wrong fit."""
+"""Overlap and fit at the fine stage's 1 m correspondence distance on 1 m voxels (metres here and below
+scale with a finer node grid). Real KITTI frames 5-10 m apart: fitness 0.84-0.91, RMSE 0.43-0.47 m
+(1 m voxels quantise); the same frames aligned 30 m off along the street, or turned round: fitness
+0.29-0.39. Two 1 m voxelisations of the same surface are about 0.5-0.6 m apart however well aligned
+(Mid-360 passages measured to 1-4 cm fit at RMSE 0.55-0.60 m on tuning seed 541), so the RMSE only
+rejects what is worse than that; overlap, the drift bound and the two starts are what tell a wrong fit."""
 MIN_CLOUD_POINTS = 50
 """Fewer 1 m voxels than this in either node cloud: nothing to register (a blocked or empty scan)."""
 POLISH_STAGES = ((3.0, 30), (1.0, 30))
