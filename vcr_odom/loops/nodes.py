@@ -15,6 +15,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+import open3d as o3d
 from numpy.typing import NDArray
 
 from vcr_odom.data.base import Points
@@ -139,3 +140,43 @@ class NodeRecorder:
                 cloud_voxel=self.cloud_voxel,
             )
         )
+
+
+SUBMAP_HALF_PATH_M = 30.0
+SUBMAP_RADIUS_M = 20.0
+NARROW_FIELD_COVERAGE = 0.5
+"""A node whose cloud covers less than this fraction of the azimuth (10 deg sectors) sees too little of
+a revisit from another heading: it is registered as a submap, its own cloud and the nodes' within
+:data:`SUBMAP_HALF_PATH_M` of path either side placed by the odometry (a few centimetres over that
+much path), cropped to :data:`SUBMAP_RADIUS_M` around the node (the place itself, not the two streets
+running away from it)."""
+AZIMUTH_SECTORS = 36
+
+
+def azimuth_coverage(cloud: NDArray) -> float:
+    """The fraction of 10 deg azimuth sectors holding a point: ~0.2 for a 70 deg solid-state field of
+    view, ~1 for a spinning LiDAR or a Mid-360, whatever the scene."""
+    if len(cloud) == 0:
+        return 0.0
+    azimuth = np.arctan2(cloud[:, 1], cloud[:, 0])
+    sectors = np.floor((azimuth + math.pi) / (2 * math.pi) * AZIMUTH_SECTORS).astype(int) % AZIMUTH_SECTORS
+    return len(np.unique(sectors)) / AZIMUTH_SECTORS
+
+
+def submap_cloud(
+    nodes: list[Node],
+    index: int,
+    half_path_m: float = SUBMAP_HALF_PATH_M,
+    radius_m: float = SUBMAP_RADIUS_M,
+) -> NDArray[np.float32]:
+    """Node ``index``'s neighbours' clouds in its frame, on its grid, within ``radius_m`` of it."""
+    centre = nodes[index]
+    to_centre = invert(centre.pose)
+    parts = []
+    for node in nodes:
+        if abs(node.path_m - centre.path_m) <= half_path_m:
+            relative = to_centre @ node.pose
+            placed = node.cloud.astype(np.float64) @ relative[:3, :3].T + relative[:3, 3]
+            parts.append(placed[np.linalg.norm(placed[:, :2], axis=1) <= radius_m])
+    merged = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.concatenate(parts)))
+    return np.asarray(merged.voxel_down_sample(centre.cloud_voxel).points, dtype=np.float32)

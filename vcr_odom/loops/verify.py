@@ -6,7 +6,9 @@ drift is a few degrees, so any revisit heading, opposite directions included, co
 The polish: point-to-plane ICP on the nodes' 1 m voxel clouds, from the network's estimate and from
 the odometry's, coarse then fine; the better fit wins. Nodes of rooms keep a finer grid
 (:func:`~vcr_odom.loops.nodes.node_cloud_voxel`), and the distances below shrink with it (``scale``),
-down to :data:`MIN_DISTANCE_SCALE`.
+down to :data:`MIN_DISTANCE_SCALE`. A narrow field of view that comes back at another heading
+registers the two nodes' submaps (:data:`SUBMAP_TURN_DEG`), where only a fit within the drift bound
+may win: a crossing of two streets fits turned by 90 or 180 deg too, and the odometry tells which.
 
 Acceptance, all of: the clouds overlap (``fitness``) and fit (``inlier_rmse``); the correction the
 loop asks of the odometry is within the drift the odometry may have gathered between the visits
@@ -29,7 +31,7 @@ from vcr_odom.errors import DataWarning
 from vcr_odom.geometry import Transform, invert, make_transform, rotation_angle
 from vcr_odom.loops.candidates import LoopCandidate
 from vcr_odom.loops.drift import DriftModel
-from vcr_odom.loops.nodes import CLOUD_VOXEL_M, Node
+from vcr_odom.loops.nodes import CLOUD_VOXEL_M, NARROW_FIELD_COVERAGE, Node, azimuth_coverage, submap_cloud
 from vcr_odom.registration.vcr import VcrFrame, VcrRegistrar
 
 MIN_FITNESS = 0.5
@@ -59,6 +61,15 @@ not shrink with the rooms, and the probe must push past where ICP comes back. On
 fits off by more than 0.2 m or 1 deg: 1 m grid 7 of 14 and 17 of 25; the reach's grid with distances
 scaled all the way (0.18 m grid) 0 of 12 and 3 of 13, slid 1.4-5.7 m along corridors; at half, 0 of 15
 and 0 of 24 (docs/benchmarks.md, "Loops indoors")."""
+SUBMAP_TURN_DEG = 45.0
+"""Narrow fields of view (:data:`~vcr_odom.loops.nodes.NARROW_FIELD_COVERAGE`) turned this much
+between the visits register the nodes' submaps: a 70 deg Avia field crossing a street at 90 deg
+shares no point with the other visit's scan (ICP from the true pose finds no correspondence)."""
+SUBMAP_PROBE_RETURN_M = 0.1
+"""A submap fit must come back from the probe this close: a crossing's submaps are nearly symmetric and
+fit well in several places. On tuning seeds 561-568 (Avia) the right crossing fits came back within
+0.03 m, the two accepted wrong ones (3.3 m / 10 deg and, on a drive whose odometry had failed, 16 m)
+from 0.22 and 0.28 m."""
 EFFECTIVE_POINTS = 50.0
 """Independent points behind a loop's uncertainty: voxel points are correlated, so the ICP Hessian of
 all of them would make a loop ~100x more certain than the odometry it corrects."""
@@ -106,7 +117,7 @@ class LoopVerifier:
     def __init__(self, network: VcrRegistrar, drift: DriftModel | None = None) -> None:
         self.network = network
         self.drift = drift or DriftModel()
-        self._targets: dict[int, tuple[VcrFrame, o3d.geometry.PointCloud]] = {}
+        self._targets: dict[tuple[int, bool], tuple[VcrFrame, o3d.geometry.PointCloud]] = {}
         self.ground_kept = 0
 
     def verify(self, candidate: LoopCandidate, nodes: list[Node]) -> LoopDecision:
@@ -117,15 +128,20 @@ class LoopVerifier:
             return decision
         kept_before = self.ground_kept
         scale = max(source.cloud_voxel / CLOUD_VOXEL_M, MIN_DISTANCE_SCALE)
-        target_frame, target_cloud = self._target(candidate.target, target)
+        submaps = self._needs_submaps(candidate, source, target)
+        target_frame, target_cloud = self._target(candidate.target, nodes, submaps)
+        source_points = submap_cloud(nodes, candidate.source) if submaps else source.cloud
         turn = make_transform(candidate.prior[:3, :3], np.zeros(3))
-        turned = (self._network_points(source) @ turn[:3, :3].T).astype(np.float32)
+        turned = (self._network_points(source_points) @ turn[:3, :3].T).astype(np.float32)
         (source_frame,) = self.network.encode_inputs([turned])
         network = self.network.register(source_frame, target_frame)
-        source_cloud = _o3d_cloud(source.cloud, source.cloud_voxel)
+        source_cloud = _o3d_cloud(source_points, source.cloud_voxel)
         starts = {"network": network.transform @ turn, "odometry": candidate.prior}
         fits = {name: _polish(source_cloud, target_cloud, start, scale) for name, start in starts.items()}
-        best = max(fits, key=lambda name: fits[name].fitness)
+        ranked = sorted(fits, key=lambda name: fits[name].fitness, reverse=True)
+        if submaps:  # a crossing's submaps fit turned by 90 or 180 deg too: the odometry tells which
+            ranked.sort(key=lambda name: not self._within_bound(candidate, fits[name].transformation))
+        best = ranked[0]
         fit = fits[best]
         measured = np.asarray(fit.transformation, dtype=np.float64).copy()
         correction = invert(candidate.prior) @ measured
@@ -145,16 +161,22 @@ class LoopVerifier:
             "bound_m": round(self.drift.translation_bound(candidate.path_m), 3),
             "bound_deg": round(self.drift.rotation_bound_deg(candidate.path_m), 3),
             "network_input_kept_ground": self.ground_kept > kept_before,
+            "submaps": submaps,
         }
+        if submaps and not self._within_bound(candidate, other.transformation):
+            other = None  # not a fit the odometry could have drifted to: no second answer
         decision.reason = self._judge(decision, fit, other, apart, scale)
         if decision.reason == "accepted":
-            decision.reason = self._probe(decision, source_cloud, target_cloud, fit, scale)
+            returns_m = (SUBMAP_PROBE_RETURN_M if submaps else PROBE_RETURN_M) * scale
+            decision.reason = self._probe(decision, source_cloud, target_cloud, fit, scale, returns_m)
         decision.accepted = decision.reason == "accepted"
         if decision.accepted:
             decision.information = _information(source_cloud, target_cloud, measured, fit.inlier_rmse, scale)
         return decision
 
-    def _judge(self, decision: LoopDecision, fit: Any, other: Any, apart: Transform, scale: float) -> str:
+    def _judge(
+        self, decision: LoopDecision, fit: Any, other: Any | None, apart: Transform, scale: float
+    ) -> str:
         scores = decision.scores
         if fit.fitness < MIN_FITNESS:
             return f"rejected: overlap {fit.fitness:.2f} < {MIN_FITNESS}"
@@ -170,8 +192,10 @@ class LoopVerifier:
         far_m *= scale
         apart_deg = math.degrees(float(rotation_angle(apart[:3, :3])))
         if (
-            scores["starts_apart_m"] > far_m or apart_deg > far_deg
-        ) and fit.fitness - other.fitness < close_fitness:
+            other is not None
+            and (scores["starts_apart_m"] > far_m or apart_deg > far_deg)
+            and fit.fitness - other.fitness < close_fitness
+        ):
             return (
                 f"rejected: ambiguous: the two starts end {scores['starts_apart_m']:.1f} m apart with "
                 f"fitness {fit.fitness:.2f} and {other.fitness:.2f}"
@@ -185,8 +209,10 @@ class LoopVerifier:
         target: o3d.geometry.PointCloud,
         fit: Any,
         scale: float,
+        returns_m: float,
     ) -> str:
-        """Starts pushed :data:`PROBE_M` both ways along the fit's weakest translation must come back:
+        """Starts pushed :data:`PROBE_M` both ways along the fit's weakest translation must come back
+        within ``returns_m``:
         along a street seen by a narrow field of view, ICP slides as far as it is pushed, and a loop
         there would pin the map at a place the scans cannot tell apart."""
         measured = np.asarray(decision.measured)
@@ -200,29 +226,47 @@ class LoopVerifier:
                 away = invert(np.asarray(ended.transformation)) @ measured
                 worst = max(worst, float(np.linalg.norm(away[:3, 3])))
         decision.scores["probe_m"] = round(worst, 3)
-        if worst > PROBE_RETURN_M * scale:
+        if worst > returns_m:
             return (
                 f"rejected: degenerate: a start {PROBE_M * scale:g} m along the weakest direction ends "
                 f"{worst:.2f} m away with as good a fit"
             )
         return "accepted"
 
-    def _network_points(self, node: Node) -> NDArray[np.float32]:
+    def _network_points(self, cloud: NDArray[np.float32]) -> NDArray[np.float32]:
         """The network's input from the node's cloud. A sparse sensor's 1 m cloud can hold fewer than
         N points off the ground, and pre-processing then keeps the ground with a warning: recorded in
         the candidate's ``network_input_kept_ground`` instead of one console line per candidate."""
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", DataWarning)
-            points = self.network.network_input(node.cloud)
+            points = self.network.network_input(cloud)
         self.ground_kept += any(issubclass(w.category, DataWarning) for w in caught)
         return points
 
-    def _target(self, index: int, node: Node) -> tuple[VcrFrame, o3d.geometry.PointCloud]:
-        if index not in self._targets:
-            points = self._network_points(node)
-            (frame,) = self.network.encode_inputs([points])
-            self._targets[index] = (frame, _o3d_cloud(node.cloud, node.cloud_voxel))
-        return self._targets[index]
+    def _target(
+        self, index: int, nodes: list[Node], submaps: bool
+    ) -> tuple[VcrFrame, o3d.geometry.PointCloud]:
+        if (index, submaps) not in self._targets:
+            cloud = submap_cloud(nodes, index) if submaps else nodes[index].cloud
+            (frame,) = self.network.encode_inputs([self._network_points(cloud)])
+            self._targets[index, submaps] = (frame, _o3d_cloud(cloud, nodes[index].cloud_voxel))
+        return self._targets[index, submaps]
+
+    @staticmethod
+    def _needs_submaps(candidate: LoopCandidate, source: Node, target: Node) -> bool:
+        """Narrow fields of view that meet at :data:`SUBMAP_TURN_DEG` or more see almost nothing of
+        each other's scan (a 70 deg field crossing a street at 90 deg: no overlap at all)."""
+        turned = math.degrees(float(rotation_angle(candidate.prior[:3, :3])))
+        narrow = min(azimuth_coverage(source.cloud), azimuth_coverage(target.cloud)) < NARROW_FIELD_COVERAGE
+        return narrow and turned >= SUBMAP_TURN_DEG
+
+    def _within_bound(self, candidate: LoopCandidate, measured: Any) -> bool:
+        correction = invert(candidate.prior) @ np.asarray(measured)
+        return float(np.linalg.norm(correction[:3, 3])) <= self.drift.translation_bound(
+            candidate.path_m
+        ) and math.degrees(float(rotation_angle(correction[:3, :3]))) <= self.drift.rotation_bound_deg(
+            candidate.path_m
+        )
 
 
 def _polish(

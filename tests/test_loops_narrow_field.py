@@ -1,0 +1,77 @@
+"""Loop closure where a narrow field of view crosses its own path: a 70 deg Avia scan of one street
+and one of the crossing street share no point, so the crossing is registered as the two nodes'
+submaps (their neighbours' clouds placed by the odometry)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from vcr_odom.data import open_sequence
+from vcr_odom.geometry import invert, make_transform, rotation_angle, rotation_from_euler_zyx
+from vcr_odom.loops import verify
+from vcr_odom.loops.candidates import LoopCandidate
+from vcr_odom.loops.nodes import NODE_SPACING_M, Node, azimuth_coverage, submap_cloud, voxel_cloud
+from vcr_odom.registration.vcr import VcrRegistrar
+from vcr_odom.synth import SensorConfig, SynthSequence
+
+WINDOW_M = 32.0
+
+
+@pytest.fixture(scope="module")
+def crossing() -> tuple[list[Node], LoopCandidate, np.ndarray]:
+    """Nodes (from ground truth) around both passes of an Avia figure eight's crossing (frames 413
+    and 716, 0.3 m apart, turned 94 deg), and the candidate with a prior 1.3 m / 3 deg off."""
+    drive = SynthSequence(
+        frames=800, seed=3, sensor=SensorConfig.model("avia"), scene="avenue", route="figure8"
+    )
+    poses = drive.world_poses
+    path = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(poses[:, :3, 3], axis=0), axis=1))])
+    earlier, later = 413, 716
+    frames = [
+        k
+        for k in range(len(poses))
+        if min(abs(path[k] - path[earlier]), abs(path[k] - path[later])) <= WINDOW_M
+    ]
+    nodes: list[Node] = []
+    for k in frames:
+        if not nodes or path[k] - nodes[-1].path_m >= NODE_SPACING_M or k in (earlier, later):
+            nodes.append(Node(k, k, poses[k], float(path[k]), voxel_cloud(drive.frame(k))))
+    target = next(n for n, node in enumerate(nodes) if node.frame_index == earlier)
+    source = next(n for n, node in enumerate(nodes) if node.frame_index == later)
+    truth = invert(poses[earlier]) @ poses[later]
+    drift = make_transform(rotation_from_euler_zyx(math.radians(3.0), 0.0, 0.0), [1.0, -0.8, 0.2])
+    apart = float(np.linalg.norm(truth[:3, 3]))
+    return (
+        nodes,
+        LoopCandidate(source, target, drift @ truth, float(path[later] - path[earlier]), apart),
+        truth,
+    )
+
+
+def test_a_narrow_field_is_told_from_a_spinning_one(kitti_sample_root: Path, crossing) -> None:
+    nodes, candidate, _ = crossing
+    street = voxel_cloud(np.asarray(open_sequence("00", data_root=kitti_sample_root).frame(0)))
+    assert azimuth_coverage(street) == 1.0
+    assert azimuth_coverage(nodes[candidate.source].cloud) < 0.3
+    submap = submap_cloud(nodes, candidate.source)
+    assert azimuth_coverage(submap) > 0.9  # the streets driven before and after, seen from the node
+    assert np.linalg.norm(submap[:, :2], axis=1).max() <= 20.0 + 1e-3
+
+
+@pytest.mark.filterwarnings("ignore::vcr_odom.errors.DataWarning")
+def test_a_narrow_field_crossing_is_closed_through_submaps(crossing, monkeypatch) -> None:
+    nodes, candidate, truth = crossing
+    network = VcrRegistrar(device="cpu")
+    decision = verify.LoopVerifier(network).verify(candidate, nodes)
+    assert decision.accepted, decision.reason
+    assert decision.scores["submaps"]
+    error = invert(truth) @ decision.measured
+    assert np.linalg.norm(error[:3, 3]) < 0.3
+    assert math.degrees(rotation_angle(error[:3, :3])) < 0.5
+    monkeypatch.setattr(verify, "NARROW_FIELD_COVERAGE", 0.0)  # the single scans: nothing in common
+    single = verify.LoopVerifier(network).verify(candidate, nodes)
+    assert not single.accepted and not single.scores["submaps"]
