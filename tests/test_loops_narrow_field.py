@@ -75,3 +75,18 @@ def test_a_narrow_field_crossing_is_closed_through_submaps(crossing, monkeypatch
     monkeypatch.setattr(verify, "NARROW_FIELD_COVERAGE", 0.0)  # the single scans: nothing in common
     single = verify.LoopVerifier(network).verify(candidate, nodes)
     assert not single.accepted and not single.scores["submaps"]
+
+
+def test_submaps_with_nothing_near_the_node_are_rejected_by_name() -> None:
+    """A narrow field that saw only far walls (every point beyond the submaps' 20 m) has nothing to register."""
+    rng = np.random.default_rng(0)
+    azimuth = rng.uniform(-0.5, 0.5, 400)
+    far = np.column_stack([40 * np.cos(azimuth), 40 * np.sin(azimuth), rng.uniform(0, 5, 400)]).astype(
+        np.float32
+    )
+    turned = make_transform(rotation_from_euler_zyx(math.radians(90.0), 0.0, 0.0), [0.0, 0.0, 0.0])
+    nodes = [Node(0, 0, np.eye(4), 0.0, far), Node(1, 100, turned, 200.0, far)]
+    candidate = LoopCandidate(1, 0, turned, 200.0, 0.0)
+    decision = verify.LoopVerifier(VcrRegistrar(device="cpu")).verify(candidate, nodes)
+    assert not decision.accepted
+    assert decision.reason == "rejected: too few points within the submaps' radius"

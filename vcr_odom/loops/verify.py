@@ -118,6 +118,7 @@ class LoopVerifier:
         self.network = network
         self.drift = drift or DriftModel()
         self._targets: dict[tuple[int, bool], tuple[VcrFrame, o3d.geometry.PointCloud]] = {}
+        self._submaps: dict[int, NDArray[np.float32]] = {}
         self.ground_kept = 0
 
     def verify(self, candidate: LoopCandidate, nodes: list[Node]) -> LoopDecision:
@@ -129,8 +130,11 @@ class LoopVerifier:
         kept_before = self.ground_kept
         scale = max(source.cloud_voxel / CLOUD_VOXEL_M, MIN_DISTANCE_SCALE)
         submaps = self._needs_submaps(candidate, source, target)
+        source_points = self._cloud(candidate.source, nodes, submaps)
+        if min(len(source_points), len(self._cloud(candidate.target, nodes, submaps))) < MIN_CLOUD_POINTS:
+            decision.reason = "rejected: too few points within the submaps' radius"
+            return decision
         target_frame, target_cloud = self._target(candidate.target, nodes, submaps)
-        source_points = submap_cloud(nodes, candidate.source) if submaps else source.cloud
         turn = make_transform(candidate.prior[:3, :3], np.zeros(3))
         turned = (self._network_points(source_points) @ turn[:3, :3].T).astype(np.float32)
         (source_frame,) = self.network.encode_inputs([turned])
@@ -234,7 +238,7 @@ class LoopVerifier:
         return "accepted"
 
     def _network_points(self, cloud: NDArray[np.float32]) -> NDArray[np.float32]:
-        """The network's input from the node's cloud. A sparse sensor's 1 m cloud can hold fewer than
+        """The network's input from a node's cloud or submap. A sparse sensor's 1 m cloud can hold fewer than
         N points off the ground, and pre-processing then keeps the ground with a warning: recorded in
         the candidate's ``network_input_kept_ground`` instead of one console line per candidate."""
         with warnings.catch_warnings(record=True) as caught:
@@ -247,10 +251,18 @@ class LoopVerifier:
         self, index: int, nodes: list[Node], submaps: bool
     ) -> tuple[VcrFrame, o3d.geometry.PointCloud]:
         if (index, submaps) not in self._targets:
-            cloud = submap_cloud(nodes, index) if submaps else nodes[index].cloud
+            cloud = self._cloud(index, nodes, submaps)
             (frame,) = self.network.encode_inputs([self._network_points(cloud)])
             self._targets[index, submaps] = (frame, _o3d_cloud(cloud, nodes[index].cloud_voxel))
         return self._targets[index, submaps]
+
+    def _cloud(self, index: int, nodes: list[Node], submaps: bool) -> NDArray[np.float32]:
+        """Node ``index``'s cloud, or its submap (kept: a crossing's candidates share their target)."""
+        if not submaps:
+            return nodes[index].cloud
+        if index not in self._submaps:
+            self._submaps[index] = submap_cloud(nodes, index)
+        return self._submaps[index]
 
     @staticmethod
     def _needs_submaps(candidate: LoopCandidate, source: Node, target: Node) -> bool:
