@@ -148,9 +148,7 @@ class LoopVerifier:
         best = ranked[0]
         fit = fits[best]
         measured = np.asarray(fit.transformation, dtype=np.float64).copy()
-        correction = invert(candidate.prior) @ measured
-        correction_m = float(np.linalg.norm(correction[:3, 3]))
-        correction_deg = math.degrees(float(rotation_angle(correction[:3, :3])))
+        correction_m, correction_deg = _correction(candidate, measured)
         other = fits["odometry" if best == "network" else "network"]
         apart = invert(np.asarray(other.transformation)) @ measured
         decision.measured = measured
@@ -273,12 +271,15 @@ class LoopVerifier:
         return narrow and turned >= SUBMAP_TURN_DEG
 
     def _within_bound(self, candidate: LoopCandidate, measured: Any) -> bool:
-        correction = invert(candidate.prior) @ np.asarray(measured)
-        return float(np.linalg.norm(correction[:3, 3])) <= self.drift.translation_bound(
-            candidate.path_m
-        ) and math.degrees(float(rotation_angle(correction[:3, :3]))) <= self.drift.rotation_bound_deg(
-            candidate.path_m
-        )
+        metres, degrees = _correction(candidate, measured)
+        path = candidate.path_m
+        return metres <= self.drift.translation_bound(path) and degrees <= self.drift.rotation_bound_deg(path)
+
+
+def _correction(candidate: LoopCandidate, measured: Any) -> tuple[float, float]:
+    """How far (m, deg) a measured ``T_target_source`` moves the odometry's."""
+    correction = invert(candidate.prior) @ np.asarray(measured, dtype=np.float64)
+    return float(np.linalg.norm(correction[:3, 3])), math.degrees(float(rotation_angle(correction[:3, :3])))
 
 
 def _polish(
