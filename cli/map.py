@@ -22,7 +22,7 @@ from vcr_odom.cli.progress import (
 from vcr_odom.cli.run import reject_unused_options, why_unscored
 from vcr_odom.cli.tables import _f, ate_cell
 from vcr_odom.data.selection import FrameSelection
-from vcr_odom.loops.pipeline import MapOutcome, MapSettings, map_sequence
+from vcr_odom.loops.pipeline import MapOutcome, MapSettings, beyond_drift_bound, map_sequence
 from vcr_odom.odometry.polish import POLISHES
 from vcr_odom.registration import METHOD_NAMES
 
@@ -64,7 +64,7 @@ FIELDS = MapSettings.model_fields
     default=FIELDS["revisit_radius"].default,
     show_default=True,
     help="A place counts as revisited within this many metres, plus the drift the odometry may have "
-    "gathered since (3 % of the path between the visits, 1.5 m at least).",
+    "gathered since (--max-drift).",
 )
 @click.option(
     "--min-loop-path",
@@ -72,6 +72,23 @@ FIELDS = MapSettings.model_fields
     default=FIELDS["min_loop_path"].default,
     show_default=True,
     help="Metres driven between two visits of a place before they can close a loop.",
+)
+@click.option(
+    "--max-drift",
+    type=click.FloatRange(min=0, min_open=True, max=50),
+    default=FIELDS["max_drift"].default,
+    show_default=True,
+    help="How far the odometry may drift between two visits, in % of the path between them (plus "
+    "1.5 m): a loop that asks for more is rejected, and so is a look-alike place a block away. Raise it "
+    "for an odometry known to drift more.",
+)
+@click.option(
+    "--max-heading-drift",
+    type=click.FloatRange(min=0, min_open=True, max=100),
+    default=FIELDS["max_heading_drift"].default,
+    show_default=True,
+    help="How far the odometry's heading may drift between two visits, in deg per 100 m of path "
+    "(plus 5 deg, at most 30 deg, the network's reach).",
 )
 @click.option(
     "--no-loops",
@@ -116,6 +133,13 @@ def map_command(ctx: click.Context, selection: FrameSelection, **options: object
         f"{len(outcome.decisions)} loop candidate(s), {len(accepted)} accepted; "
         f"details in {outcome.folder / 'loops.json'}"
     )
+    beyond = beyond_drift_bound(outcome.decisions)
+    if beyond:
+        console.print(
+            f"{beyond} candidate(s) fit but asked the odometry for more than its drift bound "
+            f"({settings.max_drift:g} % of the path, {settings.max_heading_drift:g} deg / 100 m): look-alike "
+            "places, or an odometry that drifts more (then raise --max-drift / --max-heading-drift)."
+        )
     if outcome.report is not None and outcome.odometry_report is not None:
         console.print(_scores_table(outcome))
     else:

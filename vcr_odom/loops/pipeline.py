@@ -36,7 +36,7 @@ from vcr_odom.loops.candidates import (
 from vcr_odom.loops.drift import DriftModel
 from vcr_odom.loops.graph import ATTITUDE_SIGMA_DEG, LoopEdge, correct_frames, optimise
 from vcr_odom.loops.nodes import NODE_SPACING_DEG, NODE_SPACING_M, Node, NodeRecorder
-from vcr_odom.loops.verify import LoopDecision, LoopVerifier
+from vcr_odom.loops.verify import BEYOND_DRIFT, LoopDecision, LoopVerifier
 from vcr_odom.mapping import VoxelMap
 from vcr_odom.metrics import EvaluationReport, evaluate
 from vcr_odom.odometry.chain import Odometry
@@ -69,6 +69,20 @@ class LoopOptions(Settings):
     revisit_radius: float = Field(default=REVISIT_RADIUS_M, gt=0)
     min_loop_path: float = Field(default=MIN_LOOP_PATH_M, gt=0)
     attempt_spacing: float = Field(default=ATTEMPT_SPACING_M, ge=0)
+    max_drift: float = Field(
+        default=DriftModel.translation_rate * 100,
+        gt=0,
+        le=50,
+        description="How far the odometry may drift between two visits, in % of the path between them "
+        "(plus 1.5 m): a loop asking for more is rejected, and so is a look-alike place a block away.",
+    )
+    max_heading_drift: float = Field(
+        default=DriftModel.rotation_deg_per_m * 100,
+        gt=0,
+        le=100,
+        description="How far the odometry's heading may drift between two visits, in deg per 100 m of "
+        "path (plus 5 deg, at most 30 deg).",
+    )
     loops: bool = Field(default=True, description="False: the odometry and its map only (a baseline).")
     ground_up: bool = Field(
         default=True,
@@ -289,7 +303,9 @@ def _close_loops(
 ) -> tuple[list[LoopDecision], np.ndarray, dict[str, Any]]:
     """Candidates, verification and the graph: the decisions (a loop the graph dropped is no longer
     accepted), every frame's pose, and what the graph made of the ground's up directions."""
-    drift = DriftModel()
+    drift = DriftModel(
+        translation_rate=settings.max_drift / 100, rotation_deg_per_m=settings.max_heading_drift / 100
+    )
     started = time.perf_counter()
     decisions: list[LoopDecision] = []
     if settings.loops:
@@ -380,9 +396,16 @@ def _loop_summary(decisions: list[LoopDecision]) -> dict[str, Any]:
     return {
         "candidates": len(decisions),
         "accepted": sum(d.accepted for d in decisions),
+        "beyond_drift_bound": beyond_drift_bound(decisions),
         "network_input_kept_ground": sum(bool(d.scores.get("network_input_kept_ground")) for d in decisions),
         "by_outcome": reasons,
     }
+
+
+def beyond_drift_bound(decisions: list[LoopDecision]) -> int:
+    """Candidates that fit (overlap and RMSE passed) but asked the odometry for more than its drift
+    bound: look-alike places, or an odometry that drifts more than the bound's options allow."""
+    return sum(d.reason.startswith(BEYOND_DRIFT) for d in decisions)
 
 
 def _peak_rss_bytes() -> int:

@@ -70,6 +70,9 @@ SUBMAP_PROBE_RETURN_M = 0.1
 fit well in several places. On tuning seeds 561-568 (Avia) the right crossing fits came back within
 0.03 m, the two accepted wrong ones (3.3 m / 10 deg and, on a drive whose odometry had failed, 16 m)
 from 0.22 and 0.28 m."""
+BEYOND_DRIFT = "rejected: asks the odometry for"
+"""How a fit rejected only by the drift bound is named (overlap and RMSE passed): a look-alike place, or
+odometry that drifts more than the bound allows (``map`` says how many, and the options that widen it)."""
 EFFECTIVE_POINTS = 50.0
 """Independent points behind a loop's uncertainty: voxel points are correlated, so the ICP Hessian of
 all of them would make a loop ~100x more certain than the odometry it corrects."""
@@ -186,7 +189,7 @@ class LoopVerifier:
             return f"rejected: fit RMSE {fit.inlier_rmse:.2f} m > {MAX_INLIER_RMSE_M * scale:.2f} m"
         if scores["correction_m"] > scores["bound_m"] or scores["correction_deg"] > scores["bound_deg"]:
             return (
-                f"rejected: asks the odometry for {scores['correction_m']:.2f} m / "
+                f"{BEYOND_DRIFT} {scores['correction_m']:.2f} m / "
                 f"{scores['correction_deg']:.1f} deg, beyond its drift over {decision.candidate.path_m:.0f} m "
                 f"({scores['bound_m']:.2f} m / {scores['bound_deg']:.1f} deg)"
             )
