@@ -307,3 +307,13 @@ def test_the_loop_network_shares_the_odometrys_weights_with_its_own_passes(
     assert len(loads) == 2
     with pytest.raises(ConfigError, match="save_map does not apply to map"):
         MapSettings(selection=settings.selection, save_map=Path("map.ply"))
+
+
+@pytest.mark.parametrize(("option", "value"), [("--max-drift", "0"), ("--max-heading-drift", "-3")])
+def test_map_rejects_a_drift_bound_that_is_not_positive(
+    small_synthetic_root: Path, tmp_path: Path, option: str, value: str
+) -> None:
+    args = ["map", "--data-root", str(small_synthetic_root), "--seq", "00", "--results-dir", str(tmp_path)]
+    result = CliRunner().invoke(cli, [*args, option, value])
+    assert result.exit_code == 2 and option in result.output, result.output
+    assert not any(tmp_path.iterdir()), "nothing written for a bad option"

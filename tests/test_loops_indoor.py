@@ -12,6 +12,7 @@ import pytest
 from vcr_odom.data import open_sequence
 from vcr_odom.geometry import invert, make_transform, rotation_angle, rotation_from_euler_zyx
 from vcr_odom.loops.candidates import LoopCandidate
+from vcr_odom.loops.drift import DriftModel
 from vcr_odom.loops.nodes import CLOUD_VOXEL_M, NodeRecorder, node_cloud_voxel
 from vcr_odom.synth import SensorConfig, SynthSequence
 
@@ -42,19 +43,47 @@ def test_street_nodes_keep_the_1m_grid_and_room_nodes_get_the_reachs(
     assert fixed.finish()[0].cloud_voxel == 1.0 and len(fixed.nodes[0].cloud) < len(nodes[0].cloud)
 
 
-def test_an_indoor_revisit_turned_60_degrees_is_measured_right(walk: SynthSequence) -> None:
-    from vcr_odom.loops.verify import LoopVerifier
-    from vcr_odom.registration.vcr import VcrRegistrar
-
-    truth = invert(walk.world_poses[8]) @ walk.world_poses[78]
+@pytest.fixture(scope="module")
+def revisit(walk: SynthSequence) -> tuple[list, np.ndarray]:
+    """Nodes of frames 8 and 78 (3.9 m apart, turned 59 deg) and their true relative pose."""
     recorder = NodeRecorder(spacing_m=1e-6)
     for index in (8, 78):
         recorder(index, walk.world_poses[index], walk.frame(index))
-    nodes = recorder.finish()
-    drift = make_transform(rotation_from_euler_zyx(math.radians(4), 0, 0), [1.5, -1.0, 0.2])
-    candidate = LoopCandidate(1, 0, drift @ truth, 100.0, float(np.linalg.norm(truth[:3, 3])))
-    decision = LoopVerifier(VcrRegistrar(device="cpu")).verify(candidate, nodes)
+    return recorder.finish(), invert(walk.world_poses[8]) @ walk.world_poses[78]
+
+
+def _verify(revisit: tuple[list, np.ndarray], heading_error_deg: float, drift: DriftModel | None = None):
+    from vcr_odom.loops.verify import LoopVerifier
+    from vcr_odom.registration.vcr import VcrRegistrar
+
+    nodes, truth = revisit
+    odometry_error = make_transform(
+        rotation_from_euler_zyx(math.radians(heading_error_deg), 0, 0), [1.5, -1.0, 0.2]
+    )
+    candidate = LoopCandidate(1, 0, odometry_error @ truth, 100.0, float(np.linalg.norm(truth[:3, 3])))
+    return LoopVerifier(VcrRegistrar(device="cpu"), drift).verify(candidate, nodes)
+
+
+def test_an_indoor_revisit_turned_60_degrees_is_measured_right(revisit: tuple[list, np.ndarray]) -> None:
+    decision = _verify(revisit, 4.0)
     assert decision.accepted, decision.reason
-    error = invert(truth) @ decision.measured
+    error = invert(revisit[1]) @ decision.measured
     assert np.linalg.norm(error[:3, 3]) < 0.1
     assert math.degrees(rotation_angle(error[:3, :3])) < 0.5
+
+
+def test_a_walk_whose_heading_drifted_12_degrees_in_100_m_still_closes(
+    revisit: tuple[list, np.ndarray],
+) -> None:
+    """A handheld scanner's heading drifts ~10 deg / 100 m: such a loop is right and must be kept, and a
+    bound of a car's 3 deg / 100 m (plus 5) rejects it."""
+    from vcr_odom.loops.verify import BEYOND_DRIFT
+
+    decision = _verify(revisit, 12.0)
+    assert decision.accepted, decision.reason
+    error = invert(revisit[1]) @ decision.measured
+    assert np.linalg.norm(error[:3, 3]) < 0.1
+    assert math.degrees(rotation_angle(error[:3, :3])) < 0.5
+    tight = _verify(revisit, 12.0, DriftModel(rotation_deg_per_m=0.03))
+    assert tight.reason.startswith(BEYOND_DRIFT), tight.reason
+    assert DriftModel().rotation_bound_deg(1000.0) == 30.0  # the network's reach, whatever the path
