@@ -20,8 +20,9 @@ class DriftModel:
     KITTI sample (0.5-1 % of the distance): room for sensors it does worse on, and far below the
     offset of a look-alike place one block (30 m or more) away. Heading: 10 deg / 100 m, a
     handheld scanner's drift, not a car's (0.3-0.7 deg / 100 m): no look-alike differs in heading
-    only, and a walk whose odometry turned 10 deg over 100 m (ATE 0.65-0.68 m, as the team's real
-    OS0 walk) kept none of its loops at 3 deg / 100 m (``benchmarks/loop_drift.py``). At most
+    only, and the three tuning walks (OS0, ~105 m loops) with their odometry turned 10 deg per 100 m
+    (ATE 0.65-0.68 m, near the team's real OS0 walk's) kept none of their loops at 3 deg / 100 m
+    (``benchmarks/loop_drift.py``; docs/benchmarks.md, "Loops under odometry drift"). At most
     :attr:`rotation_cap_deg`: the network registers within +-30 deg of the odometry's heading, and
     a crossing's or a symmetric room's wrong fits are turned 90 deg.
     """
