@@ -34,7 +34,7 @@ from rich.progress import track
 from rich.table import Table
 
 from vcr_odom.data import open_sequence
-from vcr_odom.geometry import Transform, invert, make_transform, rotation_angle
+from vcr_odom.geometry import Transform, invert, make_transform, rotation_angle, rotation_from_euler_zyx
 from vcr_odom.loops import pipeline
 from vcr_odom.loops.nodes import Node, NodeRecorder
 from vcr_odom.metrics.evo_errors import ate_rpe
@@ -45,22 +45,15 @@ sys.path.insert(0, str(Path(__file__).parent))
 from loop_closure import FALSE_DEG, FALSE_M, revisit_passages
 
 
-def _rotation(axis: int, degrees: float) -> np.ndarray:
-    c, s = math.cos(math.radians(degrees)), math.sin(math.radians(degrees))
-    i, j = [(1, 2), (2, 0), (0, 1)][axis]
-    rotation = np.eye(3)
-    rotation[i, i] = rotation[j, j] = c
-    rotation[i, j], rotation[j, i] = -s, s
-    return rotation
-
-
 def drifted(truth: np.ndarray, scale: float, yaw_deg_per_m: float, pitch_deg_per_m: float) -> np.ndarray:
     """``truth``'s steps, each scaled and turned in the sensor's frame by the drift per metre."""
     poses = [truth[0].copy()]
     for previous, current in itertools.pairwise(truth):
         step = invert(previous) @ current
         metres = float(np.linalg.norm(step[:3, 3]))
-        error = _rotation(2, yaw_deg_per_m * metres) @ _rotation(1, pitch_deg_per_m * metres)
+        error = rotation_from_euler_zyx(
+            math.radians(yaw_deg_per_m * metres), math.radians(pitch_deg_per_m * metres), 0.0
+        )
         moved = make_transform(step[:3, :3] @ error, step[:3, 3] * (1.0 + scale))
         poses.append(poses[-1] @ moved)
     return np.stack(poses)
