@@ -187,7 +187,7 @@ class LoopVerifier:
             return f"rejected: overlap {fit.fitness:.2f} < {MIN_FITNESS}"
         if fit.inlier_rmse > MAX_INLIER_RMSE_M * scale:
             return f"rejected: fit RMSE {fit.inlier_rmse:.2f} m > {MAX_INLIER_RMSE_M * scale:.2f} m"
-        if scores["correction_m"] > scores["bound_m"] or scores["correction_deg"] > scores["bound_deg"]:
+        if not self._within_bound(decision.candidate, decision.measured):
             return (
                 f"{BEYOND_DRIFT} {scores['correction_m']:.2f} m / "
                 f"{scores['correction_deg']:.1f} deg, beyond its drift over {decision.candidate.path_m:.0f} m "
