@@ -78,17 +78,14 @@ FIELDS = MapSettings.model_fields
     type=click.FloatRange(min=0, min_open=True, max=50),
     default=FIELDS["max_drift"].default,
     show_default=True,
-    help="How far the odometry may drift between two visits, in % of the path between them (plus "
-    "1.5 m): a loop that asks for more is rejected, and so is a look-alike place a block away. Raise it "
-    "for an odometry known to drift more.",
+    help=f"{FIELDS['max_drift'].description} Raise it for an odometry known to drift more.",
 )
 @click.option(
     "--max-heading-drift",
     type=click.FloatRange(min=0, min_open=True, max=100),
     default=FIELDS["max_heading_drift"].default,
     show_default=True,
-    help="How far the odometry's heading may drift between two visits, in deg per 100 m of path "
-    "(plus 5 deg, at most 30 deg, the network's reach).",
+    help=FIELDS["max_heading_drift"].description,
 )
 @click.option(
     "--no-loops",

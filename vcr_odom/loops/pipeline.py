@@ -74,14 +74,15 @@ class LoopOptions(Settings):
         gt=0,
         le=50,
         description="How far the odometry may drift between two visits, in % of the path between them "
-        "(plus 1.5 m): a loop asking for more is rejected, and so is a look-alike place a block away.",
+        f"(plus {DriftModel.translation_floor_m:g} m): a loop asking for more is rejected, and so is a "
+        "look-alike place a block away.",
     )
     max_heading_drift: float = Field(
         default=DriftModel.rotation_deg_per_m * 100,
         gt=0,
         le=100,
         description="How far the odometry's heading may drift between two visits, in deg per 100 m of "
-        "path (plus 5 deg, at most 30 deg).",
+        f"path (plus {DriftModel.rotation_floor_deg:g} deg, at most {DriftModel.rotation_cap_deg:g} deg).",
     )
     loops: bool = Field(default=True, description="False: the odometry and its map only (a baseline).")
     ground_up: bool = Field(
