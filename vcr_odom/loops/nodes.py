@@ -163,20 +163,38 @@ def azimuth_coverage(cloud: NDArray) -> float:
     return len(np.unique(sectors)) / AZIMUTH_SECTORS
 
 
+def submap_members(
+    nodes: list[Node], index: int, other: int | None = None, half_path_m: float = SUBMAP_HALF_PATH_M
+) -> tuple[int, ...]:
+    """The nodes making node ``index``'s submap: those within ``half_path_m`` of path either side and,
+    against the other visit's node ``other``, only those nearer along the path to this visit. Two
+    visits less than twice ``half_path_m`` apart would otherwise share the nodes between them, placed by
+    the same odometry: the two submaps then fit each other wherever the odometry put them (a
+    walk whose odometry had collapsed closed three such loops 12-30 m off)."""
+    centre = nodes[index].path_m
+    apart = None if other is None else nodes[other].path_m
+    return tuple(
+        k
+        for k, node in enumerate(nodes)
+        if abs(node.path_m - centre) <= half_path_m
+        and (apart is None or abs(node.path_m - centre) < abs(node.path_m - apart))
+    )
+
+
 def submap_cloud(
     nodes: list[Node],
     index: int,
-    half_path_m: float = SUBMAP_HALF_PATH_M,
+    members: tuple[int, ...] | None = None,
     radius_m: float = SUBMAP_RADIUS_M,
 ) -> NDArray[np.float32]:
-    """Node ``index``'s neighbours' clouds in its frame, on its grid, within ``radius_m`` of it."""
+    """The ``members``' clouds (default :func:`submap_members`) in node ``index``'s frame, on its grid,
+    within ``radius_m`` of it."""
     centre = nodes[index]
     to_centre = invert(centre.pose)
     parts = []
-    for node in nodes:
-        if abs(node.path_m - centre.path_m) <= half_path_m:
-            relative = to_centre @ node.pose
-            placed = node.cloud.astype(np.float64) @ relative[:3, :3].T + relative[:3, 3]
-            parts.append(placed[np.linalg.norm(placed[:, :2], axis=1) <= radius_m])
+    for k in submap_members(nodes, index) if members is None else members:
+        relative = to_centre @ nodes[k].pose
+        placed = nodes[k].cloud.astype(np.float64) @ relative[:3, :3].T + relative[:3, 3]
+        parts.append(placed[np.linalg.norm(placed[:, :2], axis=1) <= radius_m])
     merged = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.concatenate(parts)))
     return np.asarray(merged.voxel_down_sample(centre.cloud_voxel).points, dtype=np.float32)

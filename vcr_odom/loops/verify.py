@@ -31,7 +31,14 @@ from vcr_odom.errors import DataWarning
 from vcr_odom.geometry import Transform, invert, make_transform, rotation_angle
 from vcr_odom.loops.candidates import LoopCandidate
 from vcr_odom.loops.drift import DriftModel
-from vcr_odom.loops.nodes import CLOUD_VOXEL_M, NARROW_FIELD_COVERAGE, Node, azimuth_coverage, submap_cloud
+from vcr_odom.loops.nodes import (
+    CLOUD_VOXEL_M,
+    NARROW_FIELD_COVERAGE,
+    Node,
+    azimuth_coverage,
+    submap_cloud,
+    submap_members,
+)
 from vcr_odom.registration.vcr import VcrFrame, VcrRegistrar
 
 MIN_FITNESS = 0.5
@@ -120,8 +127,8 @@ class LoopVerifier:
     def __init__(self, network: VcrRegistrar, drift: DriftModel | None = None) -> None:
         self.network = network
         self.drift = drift or DriftModel()
-        self._targets: dict[tuple[int, bool], tuple[VcrFrame, o3d.geometry.PointCloud]] = {}
-        self._submaps: dict[int, NDArray[np.float32]] = {}
+        self._targets: dict[_CloudKey, tuple[VcrFrame, o3d.geometry.PointCloud]] = {}
+        self._submaps: dict[_CloudKey, NDArray[np.float32]] = {}
         self.ground_kept = 0
 
     def verify(self, candidate: LoopCandidate, nodes: list[Node]) -> LoopDecision:
@@ -133,11 +140,13 @@ class LoopVerifier:
         kept_before = self.ground_kept
         scale = max(source.cloud_voxel / CLOUD_VOXEL_M, MIN_DISTANCE_SCALE)
         submaps = self._needs_submaps(candidate, source, target)
-        source_points = self._cloud(candidate.source, nodes, submaps)
-        if min(len(source_points), len(self._cloud(candidate.target, nodes, submaps))) < MIN_CLOUD_POINTS:
+        source_key = _cloud_key(candidate.source, candidate.target, nodes, submaps)
+        target_key = _cloud_key(candidate.target, candidate.source, nodes, submaps)
+        source_points = self._cloud(source_key, nodes)
+        if min(len(source_points), len(self._cloud(target_key, nodes))) < MIN_CLOUD_POINTS:
             decision.reason = "rejected: too few points within the submaps' radius"
             return decision
-        target_frame, target_cloud = self._target(candidate.target, nodes, submaps)
+        target_frame, target_cloud = self._target(target_key, nodes)
         turn = make_transform(candidate.prior[:3, :3], np.zeros(3))
         turned = (self._network_points(source_points) @ turn[:3, :3].T).astype(np.float32)
         (source_frame,) = self.network.encode_inputs([turned])
@@ -248,22 +257,21 @@ class LoopVerifier:
         self.ground_kept += any(issubclass(w.category, DataWarning) for w in caught)
         return points
 
-    def _target(
-        self, index: int, nodes: list[Node], submaps: bool
-    ) -> tuple[VcrFrame, o3d.geometry.PointCloud]:
-        if (index, submaps) not in self._targets:
-            cloud = self._cloud(index, nodes, submaps)
+    def _target(self, key: _CloudKey, nodes: list[Node]) -> tuple[VcrFrame, o3d.geometry.PointCloud]:
+        if key not in self._targets:
+            cloud = self._cloud(key, nodes)
             (frame,) = self.network.encode_inputs([self._network_points(cloud)])
-            self._targets[index, submaps] = (frame, _o3d_cloud(cloud, nodes[index].cloud_voxel))
-        return self._targets[index, submaps]
+            self._targets[key] = (frame, _o3d_cloud(cloud, nodes[key[0]].cloud_voxel))
+        return self._targets[key]
 
-    def _cloud(self, index: int, nodes: list[Node], submaps: bool) -> NDArray[np.float32]:
-        """Node ``index``'s cloud, or its submap (kept: a crossing's candidates share their target)."""
-        if not submaps:
+    def _cloud(self, key: _CloudKey, nodes: list[Node]) -> NDArray[np.float32]:
+        """A node's cloud, or its submap (kept: a crossing's candidates share their target's)."""
+        index, members = key
+        if members is None:
             return nodes[index].cloud
-        if index not in self._submaps:
-            self._submaps[index] = submap_cloud(nodes, index)
-        return self._submaps[index]
+        if key not in self._submaps:
+            self._submaps[key] = submap_cloud(nodes, index, members)
+        return self._submaps[key]
 
     @staticmethod
     def _needs_submaps(candidate: LoopCandidate, source: Node, target: Node) -> bool:
@@ -277,6 +285,15 @@ class LoopVerifier:
         metres, degrees = _correction(candidate, measured)
         path = candidate.path_m
         return metres <= self.drift.translation_bound(path) and degrees <= self.drift.rotation_bound_deg(path)
+
+
+_CloudKey = tuple[int, tuple[int, ...] | None]
+"""A node and the nodes its submap is made of (None: the node's own cloud)."""
+
+
+def _cloud_key(index: int, other: int, nodes: list[Node], submaps: bool) -> _CloudKey:
+    """Node ``index``'s cloud or, for ``submaps``, its submap apart from node ``other``'s (no node in both)."""
+    return index, submap_members(nodes, index, other) if submaps else None
 
 
 def _correction(candidate: LoopCandidate, measured: Any) -> tuple[float, float]:
