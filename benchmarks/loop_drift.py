@@ -38,7 +38,6 @@ from vcr_odom.geometry import Transform, invert, make_transform, rotation_angle,
 from vcr_odom.loops import pipeline
 from vcr_odom.loops.nodes import Node, NodeRecorder
 from vcr_odom.metrics.evo_errors import ate_rpe
-from vcr_odom.odometry.loop import OdometryRun
 from vcr_odom.registration.vcr import VcrRegistrar
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -70,10 +69,8 @@ def loop_phase(
     options: pipeline.LoopOptions, nodes: list[Node], odometry: np.ndarray, network: VcrRegistrar
 ) -> tuple[list, np.ndarray]:
     """``map``'s candidates, verification and graph on ``nodes`` recorded along ``odometry``."""
-    frames = list(range(len(odometry)))
-    run = OdometryRun("drifted truth", frames, odometry, np.zeros(len(frames)), {}, 0.0)
-    decisions, poses, _ = pipeline._close_loops(options, network, nodes, run, pipeline._Phases(None))
-    return decisions, poses
+    closed = pipeline.close_loops(options, network, nodes, odometry)
+    return closed.decisions, closed.poses
 
 
 def _false(decision: Any, truth: np.ndarray) -> bool:

@@ -14,6 +14,7 @@ import dataclasses
 import resource
 import sys
 import time
+from collections import Counter
 from collections.abc import Callable, Sequence
 from contextlib import nullcontext
 from dataclasses import dataclass
@@ -36,7 +37,7 @@ from vcr_odom.loops.candidates import (
 from vcr_odom.loops.drift import DriftModel
 from vcr_odom.loops.graph import ATTITUDE_SIGMA_DEG, LoopEdge, correct_frames, optimise
 from vcr_odom.loops.nodes import NODE_SPACING_DEG, NODE_SPACING_M, Node, NodeRecorder
-from vcr_odom.loops.verify import BEYOND_DRIFT, LoopDecision, LoopVerifier
+from vcr_odom.loops.verify import LoopDecision, LoopVerifier
 from vcr_odom.mapping import VoxelMap
 from vcr_odom.metrics import EvaluationReport, evaluate
 from vcr_odom.odometry.chain import Odometry
@@ -192,7 +193,7 @@ def map_and_save(
     spec = odometry.name
     recorder = NodeRecorder(options.node_spacing, options.node_angle)
     checkpoints = Checkpoints(folder, sequence, len(indices), method=f"{spec} (odometry)", on_saved=on_saved)
-    phase = _Phases(progress)
+    phase = Phases(progress)
     kept: Path | None = folder
     try:
         with phase(f"{spec} on {sequence.name}", len(indices)) as advance:
@@ -214,7 +215,8 @@ def map_and_save(
                 kept = None
             return MapOutcome(kept, sequence, run, run.poses, [], None, None, phase.seconds)
         nodes = recorder.finish()
-        decisions, poses, up = _close_loops(options, network, nodes, run, phase)
+        closed = close_loops(options, network, nodes, run.poses, phase)
+        decisions, poses, up = closed.decisions, closed.poses, closed.ground_up
         voxel_map = _map_from_nodes(sequence, nodes, poses, options.map_voxel, phase)
     except BaseException as error:
         checkpoints.save(f"{interruption_reason(error)} (after {checkpoints.frames_done} odometry frames)")
@@ -278,7 +280,7 @@ def map_and_save(
     return outcome
 
 
-class _Phases:
+class Phases:
     """One progress bar per phase (or none) and each phase's wall time."""
 
     def __init__(self, progress: ProgressFactory | None) -> None:
@@ -295,15 +297,27 @@ def _accepted(decisions: list[LoopDecision]) -> list[LoopDecision]:
     return [d for d in decisions if d.accepted]
 
 
-def _close_loops(
+@dataclass
+class ClosedLoops:
+    """What the loop phase made of an odometry: every candidate's decision (a loop the graph dropped
+    is no longer accepted), every frame's optimised pose, and what the graph made of the ground's up."""
+
+    decisions: list[LoopDecision]
+    poses: np.ndarray
+    ground_up: dict[str, Any]
+
+
+def close_loops(
     settings: LoopOptions,
     network: VcrRegistrar,
     nodes: list[Node],
-    run: OdometryRun,
-    phase: _Phases,
-) -> tuple[list[LoopDecision], np.ndarray, dict[str, Any]]:
-    """Candidates, verification and the graph: the decisions (a loop the graph dropped is no longer
-    accepted), every frame's pose, and what the graph made of the ground's up directions."""
+    odometry_poses: np.ndarray,
+    phase: Phases | None = None,
+) -> ClosedLoops:
+    """Candidates, verification and the graph on nodes recorded along ``odometry_poses`` (every frame's,
+    as the :class:`NodeRecorder` saw them): ``map``'s loop phase, and a benchmark's on a recorded or
+    drifted odometry."""
+    phase = phase or Phases(None)
     drift = DriftModel(
         translation_rate=settings.max_drift / 100, rotation_deg_per_m=settings.max_heading_drift / 100
     )
@@ -329,19 +343,20 @@ def _close_loops(
         decision.scores["graph_weight"] = round(weight, 4)
         if not kept:
             decision.accepted = False
+            decision.check = "graph"
             decision.reason = f"dropped: disagrees with the other loops (graph weight {weight:.2f})"
     before = np.stack([node.pose for node in nodes])
     if edges:
-        poses = correct_frames(run.poses, [n.position for n in nodes], before, graph.node_poses)
+        poses = correct_frames(odometry_poses, [n.position for n in nodes], before, graph.node_poses)
     else:
-        poses = run.poses.copy()
+        poses = np.array(odometry_poses, copy=True)
     phase.seconds["graph"] = time.perf_counter() - started
     up = {"used": False} if graph.up is None else graph.up.to_dict() | {"dropped": graph.up_dropped}
-    return decisions, poses, up
+    return ClosedLoops(decisions, poses, up)
 
 
 def _map_from_nodes(
-    sequence: LidarSequence, nodes: list[Node], poses: np.ndarray, voxel: float, phase: _Phases
+    sequence: LidarSequence, nodes: list[Node], poses: np.ndarray, voxel: float, phase: Phases
 ) -> VoxelMap:
     """The map from node scans at their optimised poses, one every :data:`MAP_SCAN_SPACING_M` of path
     (read again, in order: a recording streams). A place stays in a 60 m scan for many of them."""
@@ -388,25 +403,20 @@ def _loops_json(decisions: list[LoopDecision], nodes: list[Node]) -> dict[str, A
 
 
 def _loop_summary(decisions: list[LoopDecision]) -> dict[str, Any]:
-    reasons: dict[str, int] = {}
-    for decision in decisions:
-        kind = decision.reason.split(":")[0] if not decision.accepted else "accepted"
-        if decision.reason.startswith("rejected:"):
-            kind = "rejected: " + decision.reason.split(":")[1].strip().split(" ")[0]
-        reasons[kind] = reasons.get(kind, 0) + 1
+    outcomes = Counter(decision.check or "accepted" for decision in decisions)
     return {
         "candidates": len(decisions),
         "accepted": sum(d.accepted for d in decisions),
         "beyond_drift_bound": beyond_drift_bound(decisions),
         "network_input_kept_ground": sum(bool(d.scores.get("network_input_kept_ground")) for d in decisions),
-        "by_outcome": reasons,
+        "by_outcome": dict(outcomes),
     }
 
 
 def beyond_drift_bound(decisions: list[LoopDecision]) -> int:
     """Candidates that fit (overlap and RMSE passed) but asked the odometry for more than its drift
     bound: look-alike places, or an odometry that drifts more than the bound's options allow."""
-    return sum(d.reason.startswith(BEYOND_DRIFT) for d in decisions)
+    return sum(d.check == "drift_bound" for d in decisions)
 
 
 def _peak_rss_bytes() -> int:

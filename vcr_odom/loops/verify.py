@@ -77,9 +77,11 @@ SUBMAP_PROBE_RETURN_M = 0.1
 fit well in several places. On tuning seeds 561-568 (Avia) the right crossing fits came back within
 0.03 m, the two accepted wrong ones (3.3 m / 10 deg and, on a drive whose odometry had failed, 16 m)
 from 0.22 and 0.28 m."""
-BEYOND_DRIFT = "rejected: asks the odometry for"
-"""How a fit rejected only by the drift bound is named (overlap and RMSE passed): a look-alike place, or
-odometry that drifts more than the bound allows (``map`` says how many, and the options that widen it)."""
+CHECKS = ("points", "overlap", "fit_rmse", "drift_bound", "ambiguous", "degenerate", "graph")
+"""What a candidate can fail, in the order tried (``LoopDecision.check``; ``graph``: accepted here, then
+dropped by the pose graph). ``drift_bound`` alone means the fit passed overlap and RMSE: a look-alike
+place, or odometry that drifts more than the bound allows (``map`` says how many, and the options that
+widen it)."""
 EFFECTIVE_POINTS = 50.0
 """Independent points behind a loop's uncertainty: voxel points are correlated, so the ICP Hessian of
 all of them would make a loop ~100x more certain than the odometry it corrects."""
@@ -94,6 +96,8 @@ class LoopDecision:
     target_frame: int
     accepted: bool = False
     reason: str = ""
+    check: str = ""
+    """The check it failed (one of :data:`CHECKS`; empty while accepted)."""
     measured: Transform | None = None
     information: NDArray[np.float64] | None = None
     scores: dict[str, Any] = field(default_factory=dict)
@@ -109,6 +113,7 @@ class LoopDecision:
             "odometry_distance_m": round(candidate.distance_m, 3),
             "accepted": self.accepted,
             "reason": self.reason,
+            "failed_check": self.check or None,
             **self.scores,
             "odometry_T_target_source": candidate.prior.tolist(),
             "measured_T_target_source": None if self.measured is None else self.measured.tolist(),
@@ -135,6 +140,7 @@ class LoopVerifier:
         source, target = nodes[candidate.source], nodes[candidate.target]
         decision = LoopDecision(candidate, source.frame_index, target.frame_index)
         if min(len(source.cloud), len(target.cloud)) < MIN_CLOUD_POINTS:  # an empty or near-empty scan
+            decision.check = "points"
             decision.reason = f"rejected: too few points ({len(source.cloud)}, {len(target.cloud)})"
             return decision
         kept_before = self.ground_kept
@@ -144,6 +150,7 @@ class LoopVerifier:
         target_key = _cloud_key(candidate.target, candidate.source, nodes, submaps)
         source_points = self._cloud(source_key, nodes)
         if min(len(source_points), len(self._cloud(target_key, nodes))) < MIN_CLOUD_POINTS:
+            decision.check = "points"
             decision.reason = "rejected: too few points within the submaps' radius"
             return decision
         target_frame, target_cloud = self._target(target_key, nodes)
@@ -179,26 +186,32 @@ class LoopVerifier:
         }
         if submaps and not self._within_bound(candidate, other.transformation):
             other = None  # not a fit the odometry could have drifted to: no second answer
-        decision.reason = self._judge(decision, fit, other, apart, scale)
-        if decision.reason == "accepted":
+        decision.check, decision.reason = self._judge(decision, fit, other, apart, scale)
+        if not decision.check:
             returns_m = (SUBMAP_PROBE_RETURN_M if submaps else PROBE_RETURN_M) * scale
-            decision.reason = self._probe(decision, source_cloud, target_cloud, fit, scale, returns_m)
-        decision.accepted = decision.reason == "accepted"
+            decision.check, decision.reason = self._probe(
+                decision, source_cloud, target_cloud, fit, scale, returns_m
+            )
+        decision.accepted = not decision.check
         if decision.accepted:
             decision.information = _information(source_cloud, target_cloud, measured, fit.inlier_rmse, scale)
         return decision
 
     def _judge(
         self, decision: LoopDecision, fit: Any, other: Any | None, apart: Transform, scale: float
-    ) -> str:
+    ) -> tuple[str, str]:
+        """The check failed (empty if none) and the reason ``loops.json`` gives."""
         scores = decision.scores
         if fit.fitness < MIN_FITNESS:
-            return f"rejected: overlap {fit.fitness:.2f} < {MIN_FITNESS}"
+            return "overlap", f"rejected: overlap {fit.fitness:.2f} < {MIN_FITNESS}"
         if fit.inlier_rmse > MAX_INLIER_RMSE_M * scale:
-            return f"rejected: fit RMSE {fit.inlier_rmse:.2f} m > {MAX_INLIER_RMSE_M * scale:.2f} m"
-        if not self._within_bound(decision.candidate, decision.measured):
             return (
-                f"{BEYOND_DRIFT} {scores['correction_m']:.2f} m / "
+                "fit_rmse",
+                f"rejected: fit RMSE {fit.inlier_rmse:.2f} m > {MAX_INLIER_RMSE_M * scale:.2f} m",
+            )
+        if not self._within_bound(decision.candidate, decision.measured):
+            return "drift_bound", (
+                f"rejected: asks the odometry for {scores['correction_m']:.2f} m / "
                 f"{scores['correction_deg']:.1f} deg, beyond its drift over {decision.candidate.path_m:.0f} m "
                 f"({scores['bound_m']:.2f} m / {scores['bound_deg']:.1f} deg)"
             )
@@ -210,11 +223,11 @@ class LoopVerifier:
             and (scores["starts_apart_m"] > far_m or apart_deg > far_deg)
             and fit.fitness - other.fitness < close_fitness
         ):
-            return (
+            return "ambiguous", (
                 f"rejected: ambiguous: the two starts end {scores['starts_apart_m']:.1f} m apart with "
                 f"fitness {fit.fitness:.2f} and {other.fitness:.2f}"
             )
-        return "accepted"
+        return "", "accepted"
 
     def _probe(
         self,
@@ -224,7 +237,7 @@ class LoopVerifier:
         fit: Any,
         scale: float,
         returns_m: float,
-    ) -> str:
+    ) -> tuple[str, str]:
         """Starts pushed :data:`PROBE_M` both ways along the fit's weakest translation must come back
         within ``returns_m``:
         along a street seen by a narrow field of view, ICP slides as far as it is pushed, and a loop
@@ -241,11 +254,11 @@ class LoopVerifier:
                 worst = max(worst, float(np.linalg.norm(away[:3, 3])))
         decision.scores["probe_m"] = round(worst, 3)
         if worst > returns_m:
-            return (
+            return "degenerate", (
                 f"rejected: degenerate: a start {PROBE_M * scale:g} m along the weakest direction ends "
                 f"{worst:.2f} m away with as good a fit"
             )
-        return "accepted"
+        return "", "accepted"
 
     def _network_points(self, cloud: NDArray[np.float32]) -> NDArray[np.float32]:
         """The network's input from a node's cloud or submap. A sparse sensor's 1 m cloud can hold fewer than
