@@ -319,3 +319,17 @@ def test_map_rejects_a_drift_bound_that_is_not_positive(
     result = CliRunner().invoke(cli, [*args, option, value])
     assert result.exit_code == 2 and option in result.output, result.output
     assert not any(tmp_path.iterdir()), "nothing written for a bad option"
+
+
+def test_metrics_count_candidates_by_the_check_they_failed() -> None:
+    """metrics.json's by_outcome and the drift-bound count read the decision's check, in the order tried."""
+    from vcr_odom.loops.pipeline import _loop_summary
+    from vcr_odom.loops.verify import LoopDecision
+
+    candidate = _candidate(np.eye(4), np.eye(4), 50.0)
+    checks = ["drift_bound", "", "overlap", "drift_bound", "graph", ""]
+    decisions = [LoopDecision(candidate, 1, 0, accepted=not c, check=c) for c in checks]
+    summary = _loop_summary(decisions)
+    assert summary["by_outcome"] == {"accepted": 2, "overlap": 1, "drift_bound": 2, "graph": 1}
+    assert list(summary["by_outcome"]) == ["accepted", "overlap", "drift_bound", "graph"]
+    assert summary["beyond_drift_bound"] == 2 and summary["accepted"] == 2

@@ -37,7 +37,7 @@ from vcr_odom.loops.candidates import (
 from vcr_odom.loops.drift import DriftModel
 from vcr_odom.loops.graph import ATTITUDE_SIGMA_DEG, LoopEdge, correct_frames, optimise
 from vcr_odom.loops.nodes import NODE_SPACING_DEG, NODE_SPACING_M, Node, NodeRecorder
-from vcr_odom.loops.verify import LoopDecision, LoopVerifier
+from vcr_odom.loops.verify import CHECKS, LoopDecision, LoopVerifier
 from vcr_odom.mapping import VoxelMap
 from vcr_odom.metrics import EvaluationReport, evaluate
 from vcr_odom.odometry.chain import Odometry
@@ -409,7 +409,7 @@ def _loop_summary(decisions: list[LoopDecision]) -> dict[str, Any]:
         "accepted": sum(d.accepted for d in decisions),
         "beyond_drift_bound": beyond_drift_bound(decisions),
         "network_input_kept_ground": sum(bool(d.scores.get("network_input_kept_ground")) for d in decisions),
-        "by_outcome": dict(outcomes),
+        "by_outcome": {name: outcomes[name] for name in ("accepted", *CHECKS) if outcomes[name]},
     }
 
 
