@@ -151,7 +151,10 @@ def score(
             # The position search reaches j where some truly close node is within its radius + bound.
             reach = [
                 np.linalg.norm(odometry[i] - odometry[j])
-                <= REVISIT_RADIUS_M + drift.translation_bound(nodes[j].path_m - nodes[i].path_m)
+                <= REVISIT_RADIUS_M
+                + drift.translation_bound(
+                    nodes[j].path_m - nodes[i].path_m, nodes[j].position - nodes[i].position
+                )
                 for i in close
             ]
             if not any(reach):

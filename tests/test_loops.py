@@ -128,6 +128,19 @@ def test_drift_bounds_grow_with_the_path() -> None:
     assert drift.translation_bound(200) < 30.0  # a block away is never within the drift of a short loop
 
 
+def test_a_walkers_many_frames_count_as_path() -> None:
+    """Drift grows with each registration: a walk at 10 Hz (0.13 m a frame) gathers a car's drift of
+    three times its path; a car's frames (~1 m) leave the bound as its path makes it."""
+    drift = DriftModel()
+    walk = drift.translation_bound(280.0, frames=2200)
+    assert walk == pytest.approx(drift.translation_floor_m + 0.03 * 2200 / 3)
+    assert walk > 15.0  # handheld Avia walk 871's right loops asked for 13.4-15.3 m
+    assert drift.translation_bound(600.0, frames=700) == drift.translation_bound(600.0)
+    walker, car = drift.step_sigmas(3.0, frames=23), drift.step_sigmas(3.0, frames=3)  # the graph's too
+    assert walker[0] > car[0] and walker[1] > car[1]
+    assert drift.step_sigmas(3.0, frames=3) == drift.step_sigmas(3.0)
+
+
 @pytest.fixture(scope="module")
 def sample_nodes(kitti_sample_root: Path) -> tuple[list[Node], np.ndarray]:
     """Nodes of real frames 0 and 6 (about 5 m apart) and their true relative pose."""
@@ -142,11 +155,28 @@ def sample_nodes(kitti_sample_root: Path) -> tuple[list[Node], np.ndarray]:
     return nodes, invert(sequence.gt_poses[0]) @ sequence.gt_poses[6]
 
 
-def _candidate(truth: np.ndarray, error: np.ndarray, path_m: float):
+def _candidate(truth: np.ndarray, error: np.ndarray, path_m: float, frames: int = 0):
     from vcr_odom.loops.candidates import LoopCandidate
 
     prior = error @ truth
-    return LoopCandidate(1, 0, prior, path_m, float(np.linalg.norm(prior[:3, 3])))
+    return LoopCandidate(1, 0, prior, path_m, float(np.linalg.norm(prior[:3, 3])), frames)
+
+
+def test_a_walk_that_drifted_14_m_in_280_m_closes_where_a_car_would_not(sample_nodes) -> None:
+    """The same fit asks the odometry for 14 m after 280 m: within a 10 Hz walk's drift (2,200
+    registrations), a look-alike for a car's (280)."""
+    from vcr_odom.loops.verify import LoopVerifier
+    from vcr_odom.registration.vcr import VcrRegistrar
+
+    nodes, truth = sample_nodes
+    drifted = make_transform(rotation_from_euler_zyx(math.radians(3), 0, 0), [11.0, -8.5, 0.5])
+    verifier = LoopVerifier(VcrRegistrar(device="cpu"))
+    walk = verifier.verify(_candidate(truth, drifted, 280.0, frames=2200), nodes)
+    assert walk.accepted, walk.reason
+    assert walk.scores["correction_m"] > 13.0
+    assert np.linalg.norm((invert(truth) @ walk.measured)[:3, 3]) < 0.2
+    car = verifier.verify(_candidate(truth, drifted, 280.0, frames=280), nodes)
+    assert car.check == "drift_bound", car.reason
 
 
 def test_a_revisit_is_registered_without_the_odometry_and_accepted(sample_nodes) -> None:

@@ -28,13 +28,15 @@ ATTEMPT_SPACING_M = 6.0
 @dataclass(frozen=True)
 class LoopCandidate:
     """Node ``source`` (the later visit) against node ``target`` (the earlier one); ``prior`` is the
-    odometry's ``T_target_source``, ``path_m`` the distance driven between them."""
+    odometry's ``T_target_source``, ``path_m`` the distance driven between them, ``frames`` the
+    registrations between them."""
 
     source: int
     target: int
     prior: Transform
     path_m: float
     distance_m: float
+    frames: int = 0
 
 
 def find_candidates(
@@ -50,6 +52,7 @@ def find_candidates(
         return []
     positions = np.stack([node.pose[:3, 3] for node in nodes])
     path = np.array([node.path_m for node in nodes])
+    positions_in_run = np.array([node.position for node in nodes])
     nearest: dict[int, LoopCandidate] = {}
     for j, node in enumerate(nodes):
         earlier = np.flatnonzero(path <= node.path_m - min_loop_path_m)
@@ -59,9 +62,10 @@ def find_candidates(
         best = int(np.argmin(distances))
         i = int(earlier[best])
         travelled = float(node.path_m - path[i])
-        if distances[best] <= revisit_radius_m + drift.translation_bound(travelled):
+        frames = int(node.position - positions_in_run[i])
+        if distances[best] <= revisit_radius_m + drift.translation_bound(travelled, frames):
             prior = invert(nodes[i].pose) @ node.pose
-            nearest[j] = LoopCandidate(j, i, prior, travelled, float(distances[best]))
+            nearest[j] = LoopCandidate(j, i, prior, travelled, float(distances[best]), frames)
     chosen: list[LoopCandidate] = []
     for passage in _passages(sorted(nearest)):
         picked: list[float] = []

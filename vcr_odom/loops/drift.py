@@ -14,11 +14,17 @@ from dataclasses import dataclass
 
 @dataclass(frozen=True)
 class DriftModel:
-    """Bounds on the odometry's error after ``path_m`` metres: ``floor + rate * path``.
+    """Bounds on the odometry's error after ``path_m`` metres and ``frames`` registrations:
+    ``floor + rate * max(path, frames * path_per_frame_floor)``.
 
     Translation: about three times the default odometry's drift on the synthetic drives and the
     KITTI sample (0.5-1 % of the distance): room for sensors it does worse on, and far below the
-    offset of a look-alike place one block (30 m or more) away. Heading: 10 deg / 100 m, a
+    offset of a look-alike place one block (30 m or more) away. The error grows with each
+    registration, not with each metre: a car moves ~1 m a frame, a walker at 10 Hz 0.13 m, and a
+    handheld Avia walk's odometry drifted 0.6-0.7 cm a frame (5 % of its path) where the cars' drift
+    0.1-0.5 cm a frame. So a frame counts as at least a third of a metre of path (1 cm of drift a frame
+    at 3 %), here and in the pose graph's odometry sigmas (:meth:`step_sigmas`), which changes nothing where a frame covers that much or more (cars, 2 Hz walks; tuned on
+    the walk above, docs/benchmarks.md, "Loops of a walk at 10 Hz"). Heading: 10 deg / 100 m, a
     handheld scanner's drift, not a car's (0.3-0.7 deg / 100 m): no look-alike differs in heading
     only, and the three tuning walks (OS0, ~105 m loops) with their odometry turned 10 deg per 100 m
     (ATE 0.65-0.68 m, near the team's real OS0 walk's) kept none of their loops at 3 deg / 100 m
@@ -28,6 +34,7 @@ class DriftModel:
     """
 
     translation_rate: float = 0.03
+    path_per_frame_floor_m: float = 1 / 3
     rotation_deg_per_m: float = 0.1
     translation_floor_m: float = 1.5
     rotation_floor_deg: float = 5.0
@@ -37,15 +44,18 @@ class DriftModel:
     step_sigma_floor_m: float = 0.02
     step_sigma_floor_deg: float = 0.1
 
-    def translation_bound(self, path_m: float) -> float:
-        return self.translation_floor_m + self.translation_rate * path_m
+    def translation_bound(self, path_m: float, frames: int = 0) -> float:
+        counted = max(path_m, frames * self.path_per_frame_floor_m)
+        return self.translation_floor_m + self.translation_rate * counted
 
     def rotation_bound_deg(self, path_m: float) -> float:
         return min(self.rotation_cap_deg, self.rotation_floor_deg + self.rotation_deg_per_m * path_m)
 
-    def step_sigmas(self, step_m: float) -> tuple[float, float]:
-        """One odometry edge's standard deviations (m, rad) over ``step_m`` metres: the pose graph's
-        weight of the odometry against the loops."""
-        sigma_t = self.step_sigma_floor_m + self.step_sigma_rate * step_m
-        sigma_r = math.radians(self.step_sigma_floor_deg + self.step_sigma_deg_per_m * step_m)
+    def step_sigmas(self, step_m: float, frames: int = 0) -> tuple[float, float]:
+        """One odometry edge's standard deviations (m, rad) over ``step_m`` metres and ``frames``
+        registrations (each counted as :attr:`path_per_frame_floor_m` of path at least, as in the
+        bound): the pose graph's weight of the odometry against the loops."""
+        counted = max(step_m, frames * self.path_per_frame_floor_m)
+        sigma_t = self.step_sigma_floor_m + self.step_sigma_rate * counted
+        sigma_r = math.radians(self.step_sigma_floor_deg + self.step_sigma_deg_per_m * counted)
         return sigma_t, sigma_r

@@ -154,8 +154,8 @@ def _turn_onto(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.flo
     return Rotation.from_rotvec(axis / sine * math.atan2(sine, float(a @ b))).as_matrix()
 
 
-def _odometry_information(drift: DriftModel, motion: Transform) -> NDArray[np.float64]:
-    sigma_t, sigma_r = drift.step_sigmas(float(np.linalg.norm(motion[:3, 3])))
+def _odometry_information(drift: DriftModel, motion: Transform, frames: int) -> NDArray[np.float64]:
+    sigma_t, sigma_r = drift.step_sigmas(float(np.linalg.norm(motion[:3, 3])), frames)
     return np.diag([sigma_r**-2] * 3 + [sigma_t**-2] * 3)
 
 
@@ -177,6 +177,7 @@ def optimise(
     ``attitude_sigma_deg``: the up directions' weight (0 leaves them out)."""
     drift = drift or DriftModel()
     odometry = np.stack([node.pose for node in nodes])
+    frames = np.diff([node.position for node in nodes]).astype(int).tolist()
     if not loops:
         return GraphResult(odometry.copy(), [], [])
     up = up_priors(nodes, attitude_sigma_deg)
@@ -184,7 +185,7 @@ def optimise(
     weights = [1.0] * len(edges)
     poses = odometry
     for _ in range(ROUNDS):
-        poses = _solve(odometry, edges, weights, drift)
+        poses = _solve(odometry, frames, edges, weights, drift)
         chi2 = [_residual_chi2(poses, edge) for edge in edges]
         new = [1.0 / (1.0 + c / (edge.dof * CAUCHY_SCALE**2)) for c, edge in zip(chi2, edges, strict=True)]
         if np.allclose(new, weights, atol=1e-3):
@@ -195,21 +196,27 @@ def optimise(
         w * (LOOP_SHARE if isinstance(edge, LoopEdge) else 1.0) if k else 0.0
         for w, k, edge in zip(weights, kept, edges, strict=True)
     ]
-    poses = _solve(odometry, edges, final, drift)
+    poses = _solve(odometry, frames, edges, final, drift)
     n = len(loops)
     return GraphResult(poses, weights[:n], kept[:n], up, kept[n:].count(False))
 
 
 def _solve(
-    odometry: NDArray[np.float64], loops: Sequence[GraphEdge], weights: Sequence[float], drift: DriftModel
+    odometry: NDArray[np.float64],
+    frames: Sequence[int],
+    loops: Sequence[GraphEdge],
+    weights: Sequence[float],
+    drift: DriftModel,
 ) -> NDArray[np.float64]:
+    """The graph solved once: ``odometry`` the node poses, ``frames`` the registrations between each
+    node and the next."""
     registration = o3d.pipelines.registration
     graph = registration.PoseGraph()
     for pose in odometry:
         graph.nodes.append(registration.PoseGraphNode(pose))
     for k in range(len(odometry) - 1):
         motion = invert(odometry[k]) @ odometry[k + 1]
-        info = _odometry_information(drift, motion)
+        info = _odometry_information(drift, motion, frames[k])
         graph.edges.append(registration.PoseGraphEdge(k + 1, k, motion, info, uncertain=False))
     for loop, weight in zip(loops, weights, strict=True):
         if weight > 0:

@@ -75,7 +75,8 @@ class LoopOptions(Settings):
         gt=0,
         le=50,
         description="How far the odometry may drift between two visits, in % of the path between them "
-        f"(plus {DriftModel.translation_floor_m:g} m): a loop asking for more is rejected, and so is a "
+        f"(each frame counting as at least {DriftModel.path_per_frame_floor_m * 100:.0f} cm of it; plus "
+        f"{DriftModel.translation_floor_m:g} m): a loop asking for more is rejected, and so is a "
         "look-alike place a block away.",
     )
     max_heading_drift: float = Field(

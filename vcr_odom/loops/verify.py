@@ -110,6 +110,7 @@ class LoopDecision:
             "source_frame": self.source_frame,
             "target_frame": self.target_frame,
             "path_between_m": round(candidate.path_m, 3),
+            "frames_between": candidate.frames,
             "odometry_distance_m": round(candidate.distance_m, 3),
             "accepted": self.accepted,
             "reason": self.reason,
@@ -179,7 +180,7 @@ class LoopVerifier:
             "starts_apart_m": round(float(np.linalg.norm(apart[:3, 3])), 3),
             "correction_m": round(correction_m, 3),
             "correction_deg": round(correction_deg, 3),
-            "bound_m": round(self.drift.translation_bound(candidate.path_m), 3),
+            "bound_m": round(self.drift.translation_bound(candidate.path_m, candidate.frames), 3),
             "bound_deg": round(self.drift.rotation_bound_deg(candidate.path_m), 3),
             "network_input_kept_ground": self.ground_kept > kept_before,
             "submaps": submaps,
@@ -212,7 +213,7 @@ class LoopVerifier:
         if not self._within_bound(decision.candidate, decision.measured):
             return "drift_bound", (
                 f"rejected: asks the odometry for {scores['correction_m']:.2f} m / "
-                f"{scores['correction_deg']:.1f} deg, beyond its drift over {decision.candidate.path_m:.0f} m "
+                f"{scores['correction_deg']:.1f} deg, beyond its drift over {decision.candidate.path_m:.0f} m / {decision.candidate.frames} frames "
                 f"({scores['bound_m']:.2f} m / {scores['bound_deg']:.1f} deg)"
             )
         far_m, far_deg, close_fitness = AMBIGUITY
@@ -297,7 +298,8 @@ class LoopVerifier:
     def _within_bound(self, candidate: LoopCandidate, measured: Any) -> bool:
         metres, degrees = _correction(candidate, measured)
         path = candidate.path_m
-        return metres <= self.drift.translation_bound(path) and degrees <= self.drift.rotation_bound_deg(path)
+        bound_m = self.drift.translation_bound(path, candidate.frames)
+        return metres <= bound_m and degrees <= self.drift.rotation_bound_deg(path)
 
 
 _CloudKey = tuple[int, tuple[int, ...] | None]
