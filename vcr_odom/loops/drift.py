@@ -22,9 +22,10 @@ class DriftModel:
     offset of a look-alike place one block (30 m or more) away. The error grows with each
     registration, not with each metre: a car moves ~1 m a frame, a walker at 10 Hz 0.13 m, and a
     handheld Avia walk's odometry drifted 0.6-0.7 cm a frame (5 % of its path) where the cars' drift
-    0.1-0.5 cm a frame. So a frame counts as at least a third of a metre of path (1 cm of drift a frame
-    at 3 %), here and in the pose graph's odometry sigmas (:meth:`step_sigmas`), which changes nothing where a frame covers that much or more (cars, 2 Hz walks; tuned on
-    the walk above, docs/benchmarks.md, "Loops of a walk at 10 Hz"). Heading: 10 deg / 100 m, a
+    0.01-0.5 cm a frame. So a frame counts as at least a third of a metre of path (1 cm of drift a
+    frame at 3 %), here and in the pose graph's odometry sigmas (:meth:`step_sigmas`), which changes
+    nothing where a frame covers that much or more (cars, 2 Hz walks; tuned on the walk above,
+    docs/benchmarks.md, "Loops of a walk at 10 Hz"). Heading: 10 deg / 100 m, a
     handheld scanner's drift, not a car's (0.3-0.7 deg / 100 m): no look-alike differs in heading
     only, and the three tuning walks (OS0, ~105 m loops) with their odometry turned 10 deg per 100 m
     (ATE 0.65-0.68 m, near the team's real OS0 walk's) kept none of their loops at 3 deg / 100 m
