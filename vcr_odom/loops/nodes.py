@@ -148,8 +148,8 @@ NARROW_FIELD_COVERAGE = 0.5
 """A node whose cloud covers less than this fraction of the azimuth (10 deg sectors) sees too little of
 a revisit from another heading: it is registered as a submap, its own cloud and the nodes' within
 :data:`SUBMAP_HALF_PATH_M` of path either side (none nearer to the other visit: :func:`submap_members`)
-placed by the odometry (so it carries the odometry's drift over that much path), cropped to :data:`SUBMAP_RADIUS_M` around the node (the place itself, not the two streets
-running away from it)."""
+placed by the odometry (so it carries the odometry's drift over that much path), cropped to
+:data:`SUBMAP_RADIUS_M` around the node (the place itself, not the two streets running away from it)."""
 AZIMUTH_SECTORS = 36
 
 

@@ -210,11 +210,12 @@ class LoopVerifier:
                 "fit_rmse",
                 f"rejected: fit RMSE {fit.inlier_rmse:.2f} m > {MAX_INLIER_RMSE_M * scale:.2f} m",
             )
-        if not self._within_bound(decision.candidate, decision.measured):
+        candidate = decision.candidate
+        if not self._within_bound(candidate, decision.measured):
             return "drift_bound", (
                 f"rejected: asks the odometry for {scores['correction_m']:.2f} m / "
-                f"{scores['correction_deg']:.1f} deg, beyond its drift over {decision.candidate.path_m:.0f} m / {decision.candidate.frames} frames "
-                f"({scores['bound_m']:.2f} m / {scores['bound_deg']:.1f} deg)"
+                f"{scores['correction_deg']:.1f} deg, beyond its drift over {candidate.path_m:.0f} m / "
+                f"{candidate.frames} frames ({scores['bound_m']:.2f} m / {scores['bound_deg']:.1f} deg)"
             )
         far_m, far_deg, close_fitness = AMBIGUITY
         far_m *= scale
@@ -307,7 +308,8 @@ _CloudKey = tuple[int, tuple[int, ...] | None]
 
 
 def _cloud_key(index: int, other: int, nodes: list[Node], submaps: bool) -> _CloudKey:
-    """Node ``index``'s cloud or, for ``submaps``, its submap apart from node ``other``'s (no node in both)."""
+    """Node ``index``'s cloud or, for ``submaps``, its submap apart from node ``other``'s (no node in
+    both)."""
     return index, submap_members(nodes, index, other) if submaps else None
 
 
