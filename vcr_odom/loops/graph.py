@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import open3d as o3d
@@ -25,6 +25,7 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation, Slerp
 
 from vcr_odom.geometry import Transform, invert
+from vcr_odom.loops.cycles import OdometryScale, cycle_outliers, loop_cycles, odometry_scale
 from vcr_odom.loops.drift import DriftModel
 from vcr_odom.loops.nodes import Node
 
@@ -111,6 +112,9 @@ class GraphResult:
     kept: list[bool]
     up: UpPriors | None = None
     up_dropped: int = 0
+    odometry: OdometryScale | None = None
+    cycle_outliers: dict[int, tuple[int, int]] = field(default_factory=dict)
+    """Loops dropped before the rounds (index -> misclosed cycles, cycles): :func:`cycle_outliers`."""
 
 
 def up_priors(nodes: Sequence[Node], sigma_deg: float = ATTITUDE_SIGMA_DEG) -> UpPriors:
@@ -154,9 +158,11 @@ def _turn_onto(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.flo
     return Rotation.from_rotvec(axis / sine * math.atan2(sine, float(a @ b))).as_matrix()
 
 
-def _odometry_information(drift: DriftModel, motion: Transform, frames: int) -> NDArray[np.float64]:
+def _odometry_information(
+    drift: DriftModel, motion: Transform, frames: int, scale: float = 1.0
+) -> NDArray[np.float64]:
     sigma_t, sigma_r = drift.step_sigmas(float(np.linalg.norm(motion[:3, 3])), frames)
-    return np.diag([sigma_r**-2] * 3 + [sigma_t**-2] * 3)
+    return np.diag([(scale * sigma_r) ** -2] * 3 + [(scale * sigma_t) ** -2] * 3)
 
 
 def _residual_chi2(poses: NDArray[np.float64], edge: GraphEdge) -> float:
@@ -181,13 +187,19 @@ def optimise(
     if not loops:
         return GraphResult(odometry.copy(), [], [])
     up = up_priors(nodes, attitude_sigma_deg)
+    cycles = loop_cycles(nodes, loops, drift)
+    scale = odometry_scale(cycles)
+    outliers = cycle_outliers(cycles, scale.scale)
     edges: list[GraphEdge] = [*loops, *up.edges]
-    weights = [1.0] * len(edges)
+    weights = [0.0 if k in outliers else 1.0 for k in range(len(edges))]
     poses = odometry
     for _ in range(ROUNDS):
-        poses = _solve(odometry, frames, edges, weights, drift)
+        poses = _solve(odometry, frames, edges, weights, drift, scale.scale)
         chi2 = [_residual_chi2(poses, edge) for edge in edges]
-        new = [1.0 / (1.0 + c / (edge.dof * CAUCHY_SCALE**2)) for c, edge in zip(chi2, edges, strict=True)]
+        new = [
+            0.0 if k in outliers else 1.0 / (1.0 + c / (edge.dof * CAUCHY_SCALE**2))
+            for k, (c, edge) in enumerate(zip(chi2, edges, strict=True))
+        ]
         if np.allclose(new, weights, atol=1e-3):
             break
         weights = new
@@ -196,9 +208,9 @@ def optimise(
         w * (LOOP_SHARE if isinstance(edge, LoopEdge) else 1.0) if k else 0.0
         for w, k, edge in zip(weights, kept, edges, strict=True)
     ]
-    poses = _solve(odometry, frames, edges, final, drift)
+    poses = _solve(odometry, frames, edges, final, drift, scale.scale)
     n = len(loops)
-    return GraphResult(poses, weights[:n], kept[:n], up, kept[n:].count(False))
+    return GraphResult(poses, weights[:n], kept[:n], up, kept[n:].count(False), scale, outliers)
 
 
 def _solve(
@@ -207,16 +219,17 @@ def _solve(
     loops: Sequence[GraphEdge],
     weights: Sequence[float],
     drift: DriftModel,
+    scale: float = 1.0,
 ) -> NDArray[np.float64]:
     """The graph solved once: ``odometry`` the node poses, ``frames`` the registrations between each
-    node and the next."""
+    node and the next, ``scale`` the odometry sigmas' factor (:func:`~vcr_odom.loops.cycles.odometry_scale`)."""
     registration = o3d.pipelines.registration
     graph = registration.PoseGraph()
     for pose in odometry:
         graph.nodes.append(registration.PoseGraphNode(pose))
     for k in range(len(odometry) - 1):
         motion = invert(odometry[k]) @ odometry[k + 1]
-        info = _odometry_information(drift, motion, frames[k])
+        info = _odometry_information(drift, motion, frames[k], scale)
         graph.edges.append(registration.PoseGraphEdge(k + 1, k, motion, info, uncertain=False))
     for loop, weight in zip(loops, weights, strict=True):
         if weight > 0:

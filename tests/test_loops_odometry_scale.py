@@ -1,0 +1,93 @@
+"""The pose graph's odometry sigmas measured by the loops: an odometry noisier than the drift model
+says (a handheld 16-beam walk at 10 Hz) must not make the graph drop its right loops, and a block-away
+false loop must still be dropped there; an odometry within the model keeps its sigmas."""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from vcr_odom.geometry import invert, make_transform, rotation_from_euler_zyx
+from vcr_odom.loops.drift import DriftModel
+from vcr_odom.loops.cycles import loop_cycles, odometry_scale
+from vcr_odom.loops.graph import LoopEdge, optimise
+from vcr_odom.loops.nodes import Node
+
+LOOP_INFORMATION = np.diag([math.radians(0.2) ** -2] * 3 + [0.05**-2] * 3)  # 0.2 deg, 5 cm
+
+
+def _noisy_circle(noise_factor: float, seed: int = 7) -> tuple[list, list[Node]]:
+    """True poses around a 40 m circle, a lap and a half, one node a step, and the odometry's: every
+    step off by random noise ``noise_factor`` times the drift model's step sigmas."""
+    rng = np.random.default_rng(seed)
+    count = 60
+    step = make_transform(
+        rotation_from_euler_zyx(2 * math.pi / count, 0, 0), [2 * math.pi * 40 / count, 0, 0]
+    )
+    sigma_t, sigma_r = DriftModel().step_sigmas(float(np.linalg.norm(step[:3, 3])))
+    truth, odometry = [np.eye(4)], [np.eye(4)]
+    for _ in range(count + count // 2):
+        noise = make_transform(
+            Rotation.from_rotvec(rng.normal(0, noise_factor * sigma_r, 3)).as_matrix(),
+            rng.normal(0, noise_factor * sigma_t, 3),
+        )
+        truth.append(truth[-1] @ step)
+        odometry.append(odometry[-1] @ step @ noise)
+    path = np.concatenate(
+        [[0.0], np.cumsum([np.linalg.norm(b[:3, 3] - a[:3, 3]) for a, b in itertools.pairwise(odometry)])]
+    )
+    nodes = [
+        Node(position=k, frame_index=k, pose=pose, path_m=float(path[k]), cloud=np.zeros((0, 3), np.float32))
+        for k, pose in enumerate(odometry)
+    ]
+    return truth, nodes
+
+
+def _true_loops(truth: list) -> list[LoopEdge]:
+    return [LoopEdge(j, j - 60, invert(truth[j - 60]) @ truth[j], LOOP_INFORMATION) for j in range(60, 91, 2)]
+
+
+@pytest.mark.parametrize("seed", [7, 8])
+def test_an_odometry_within_the_model_keeps_its_sigmas(seed: int) -> None:
+    truth, nodes = _noisy_circle(0.5, seed)
+    scale = odometry_scale(loop_cycles(nodes, _true_loops(truth), DriftModel()))
+    assert scale.cycles >= 50
+    assert scale.median_ratio is not None and scale.median_ratio < 1.0
+    assert scale.scale == 1.0
+
+
+@pytest.mark.parametrize("seed", [7, 8])
+def test_loops_measure_an_odometry_noisier_than_the_model(seed: int) -> None:
+    """Noise 6x the model's sigmas: the cycles' median misclosure, in those sigmas, is near 6 (the
+    median of a 3-D normal's length is 0.89 of its RMS; the larger of the rotation and translation
+    ratios is taken)."""
+    truth, nodes = _noisy_circle(6.0, seed)
+    scale = odometry_scale(loop_cycles(nodes, _true_loops(truth), DriftModel()))
+    assert 3.0 < scale.scale < 10.0
+
+
+def test_few_cycles_leave_the_sigmas_alone() -> None:
+    truth, nodes = _noisy_circle(6.0)
+    two_loops = _true_loops(truth)[:2]
+    scale = odometry_scale(loop_cycles(nodes, two_loops, DriftModel()))
+    assert scale.cycles == 1 and scale.scale == 1.0
+
+
+def test_a_noisy_odometry_keeps_its_right_loops_and_drops_a_block_away() -> None:
+    truth, nodes = _noisy_circle(6.0)
+    right = _true_loops(truth)
+    block_away = make_transform(np.eye(3), [30.0, 0, 0])  # a look-alike place one block further on
+    false_loop = LoopEdge(75, 25, block_away @ invert(truth[25]) @ truth[75], LOOP_INFORMATION)
+    result = optimise(nodes, [*right, false_loop])
+    assert result.odometry is not None and result.odometry.scale > 1.0
+    assert result.kept == [True] * len(right) + [False]
+    def apart(a: int, b: int) -> float:  # how far the optimised a-from-b is from the truth, metres
+        error = invert(invert(truth[b]) @ truth[a]) @ invert(result.node_poses[b]) @ result.node_poses[a]
+        return float(np.linalg.norm(error[:3, 3]))
+
+    assert max(apart(loop.source, loop.target) for loop in right) < 0.5
+    assert apart(75, 25) < 10.0  # not pulled a block (30 m) away; the noisy odometry alone leaves 4 m

@@ -1,0 +1,146 @@
+"""What pairs of loops say about the odometry and about each other.
+
+Two loops between the same two passages close a cycle through two short stretches of odometry (one
+between their sources, one between their targets): its misclosure is those stretches' error plus the
+two loops'. Over every such pair, the median misclosure, in the pose graph's own odometry sigmas, says
+whether the odometry is noisier than the drift model assumes (a handheld 16-beam walk at 10 Hz: five
+times); and a loop whose cycles with the loops near it mostly misclose is wrong, whatever the graph
+could bend the odometry into.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+from vcr_odom.geometry import Transform, invert
+from vcr_odom.loops.drift import DriftModel
+from vcr_odom.loops.nodes import Node
+
+if TYPE_CHECKING:
+    from vcr_odom.loops.graph import LoopEdge
+
+CYCLE_SPAN_M = 60.0
+"""Two loops close a cycle where their sources, and their targets, are within this path of each other:
+short stretches, whose odometry error is the random part the graph's sigmas model (a long stretch's is
+mostly systematic drift, which the loops are there to correct)."""
+MIN_CYCLES = 5
+"""Fewer cycles than this leave the odometry's sigmas as the drift model has them: a median of a
+handful can be one false loop's."""
+MISCLOSURE_SIGMAS = 3.0
+"""A cycle misclosed beyond this many (scaled) sigmas says one of its two loops is wrong."""
+
+
+@dataclass(frozen=True)
+class Cycle:
+    """Loops ``first`` and ``second`` (indices into the graph's loops) and their cycle's misclosure in
+    the odometry's and the loops' sigmas (the larger of the rotation's and the translation's)."""
+
+    first: int
+    second: int
+    ratio: float
+
+
+@dataclass(frozen=True)
+class OdometryScale:
+    """How far the odometry's error exceeds the drift model's step sigmas: ``scale`` (1 where it does
+    not), from ``cycles`` pairs of loops near each other, whose median misclosure is ``median_ratio``."""
+
+    scale: float
+    cycles: int
+    median_ratio: float | None
+
+    def to_dict(self) -> dict[str, object]:
+        ratio = None if self.median_ratio is None else round(self.median_ratio, 3)
+        return {"scale": round(self.scale, 3), "cycles": self.cycles, "median_ratio": ratio}
+
+
+def loop_cycles(nodes: Sequence[Node], loops: Sequence[LoopEdge], drift: DriftModel) -> list[Cycle]:
+    """Every pair of loops whose sources, and whose targets, are within :data:`CYCLE_SPAN_M` of path."""
+    path = np.array([node.path_m for node in nodes])
+    variance_t, variance_r = _cumulative_step_variances(nodes, drift)
+    order = sorted(range(len(loops)), key=lambda k: loops[k].source)
+    cycles = []
+    for rank, i in enumerate(order):
+        first = loops[i]
+        for j in order[rank + 1 :]:
+            second = loops[j]
+            if path[second.source] - path[first.source] > CYCLE_SPAN_M:
+                break
+            if abs(path[second.target] - path[first.target]) > CYCLE_SPAN_M:
+                continue
+            expected_t = expected_r = 0.0
+            for a, b in ((first.source, second.source), (first.target, second.target)):
+                lo, hi = min(a, b), max(a, b)
+                lever = float(np.linalg.norm(nodes[hi].pose[:3, 3] - nodes[lo].pose[:3, 3]))
+                rotation = variance_r[hi] - variance_r[lo]
+                expected_r += rotation
+                expected_t += variance_t[hi] - variance_t[lo] + rotation * lever**2
+            for loop in (first, second):
+                covariance = np.linalg.inv(loop.information)
+                expected_r += float(np.trace(covariance[:3, :3])) / 3
+                expected_t += float(np.trace(covariance[3:, 3:])) / 3
+            misclosure = _misclosure(nodes, first, second)
+            rotation_ratio = float(np.linalg.norm(misclosure[:3])) / math.sqrt(3 * expected_r)
+            translation_ratio = float(np.linalg.norm(misclosure[3:])) / math.sqrt(3 * expected_t)
+            cycles.append(Cycle(i, j, max(rotation_ratio, translation_ratio)))
+    return cycles
+
+
+def odometry_scale(cycles: Sequence[Cycle]) -> OdometryScale:
+    """The odometry sigmas' factor: the cycles' median misclosure where it is above 1, never below 1
+    (a tighter odometry would let the loops' own scatter into the map). The median, because a false
+    loop's cycles are few among the right loops'."""
+    if len(cycles) < MIN_CYCLES:
+        return OdometryScale(1.0, len(cycles), None)
+    median = float(np.median([cycle.ratio for cycle in cycles]))
+    return OdometryScale(max(1.0, median), len(cycles), median)
+
+
+def cycle_outliers(cycles: Sequence[Cycle], scale: float) -> dict[int, tuple[int, int]]:
+    """Loops (index -> (misclosed, cycles)) more than half of whose cycles, at least three, misclose
+    beyond :data:`MISCLOSURE_SIGMAS` of the scaled sigmas. Why beside the graph's robust kernel: where
+    the odometry's sigmas are scaled up, the graph can bend the odometry to fit a false loop and the
+    loop's residual stays small; its cycles with the right loops near it still misclose."""
+    counts: dict[int, list[int]] = {}
+    for cycle in cycles:
+        misclosed = int(cycle.ratio > MISCLOSURE_SIGMAS * scale)
+        for loop in (cycle.first, cycle.second):
+            tally = counts.setdefault(loop, [0, 0])
+            tally[0] += misclosed
+            tally[1] += 1
+    return {loop: (bad, total) for loop, (bad, total) in counts.items() if total >= 3 and 2 * bad > total}
+
+
+def _cumulative_step_variances(
+    nodes: Sequence[Node], drift: DriftModel
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The odometry's translation and rotation variance from the first node to each, summed over its
+    edges as the graph weighs them."""
+    variance_t, variance_r = np.zeros(len(nodes)), np.zeros(len(nodes))
+    for k in range(len(nodes) - 1):
+        motion = invert(nodes[k].pose) @ nodes[k + 1].pose
+        sigma_t, sigma_r = drift.step_sigmas(
+            float(np.linalg.norm(motion[:3, 3])), nodes[k + 1].position - nodes[k].position
+        )
+        variance_t[k + 1] = variance_t[k] + sigma_t**2
+        variance_r[k + 1] = variance_r[k] + sigma_r**2
+    return variance_t, variance_r
+
+
+def _misclosure(nodes: Sequence[Node], first: LoopEdge, second: LoopEdge) -> NDArray[np.float64]:
+    """The twist (rotation vector, translation) by which the odometry from ``first``'s source to
+    ``second``'s and the path through the two loops and the odometry between their targets disagree."""
+
+    def between(a: int, b: int) -> Transform:
+        return invert(nodes[a].pose) @ nodes[b].pose
+
+    through_loops = invert(first.transform) @ between(first.target, second.target) @ second.transform
+    error = invert(between(first.source, second.source)) @ through_loops
+    return np.concatenate([Rotation.from_matrix(error[:3, :3]).as_rotvec(), error[:3, 3]])
