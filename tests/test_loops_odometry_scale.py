@@ -12,8 +12,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from vcr_odom.geometry import invert, make_transform, rotation_from_euler_zyx
-from vcr_odom.loops.drift import DriftModel
 from vcr_odom.loops.cycles import loop_cycles, odometry_scale
+from vcr_odom.loops.drift import DriftModel
 from vcr_odom.loops.graph import LoopEdge, optimise
 from vcr_odom.loops.nodes import Node
 
@@ -85,6 +85,8 @@ def test_a_noisy_odometry_keeps_its_right_loops_and_drops_a_block_away() -> None
     result = optimise(nodes, [*right, false_loop])
     assert result.odometry is not None and result.odometry.scale > 1.0
     assert result.kept == [True] * len(right) + [False]
+    assert list(result.cycle_outliers) == [len(right)], "dropped by its cycles, before the robust rounds"
+
     def apart(a: int, b: int) -> float:  # how far the optimised a-from-b is from the truth, metres
         error = invert(invert(truth[b]) @ truth[a]) @ invert(result.node_poses[b]) @ result.node_poses[a]
         return float(np.linalg.norm(error[:3, 3]))

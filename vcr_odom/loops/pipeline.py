@@ -244,7 +244,12 @@ def map_and_save(
             unit / "metrics.json",
             {
                 "run": run_summary(run),
-                "loops": _loop_summary(decisions) | {"ground_up": up, "node_voxel_m": recorder.cloud_voxel},
+                "loops": _loop_summary(decisions)
+                | {
+                    "ground_up": up,
+                    "odometry_sigma_scale": closed.odometry_scale,
+                    "node_voxel_m": recorder.cloud_voxel,
+                },
                 "seconds": phase.seconds,
                 "memory": memory,
                 **(report.to_dict() if report is not None else {"ground_truth": None}),
@@ -306,6 +311,8 @@ class ClosedLoops:
     decisions: list[LoopDecision]
     poses: np.ndarray
     ground_up: dict[str, Any]
+    odometry_scale: dict[str, Any] | None = None
+    """How the loops' cycles scaled the graph's odometry sigmas (None without loops)."""
 
 
 def close_loops(
@@ -340,12 +347,20 @@ def close_loops(
         for d in _accepted(decisions)
     ]
     graph = optimise(nodes, edges, drift, ATTITUDE_SIGMA_DEG if settings.ground_up else 0.0)
-    for decision, kept, weight in zip(_accepted(decisions), graph.kept, graph.weights, strict=True):
+    for k, (decision, kept, weight) in enumerate(
+        zip(_accepted(decisions), graph.kept, graph.weights, strict=True)
+    ):
         decision.scores["graph_weight"] = round(weight, 4)
         if not kept:
             decision.accepted = False
             decision.check = "graph"
-            decision.reason = f"dropped: disagrees with the other loops (graph weight {weight:.2f})"
+            if k in graph.cycle_outliers:
+                misclosed, cycles = graph.cycle_outliers[k]
+                decision.reason = (
+                    f"dropped: {misclosed} of its {cycles} cycles with the loops near it do not close"
+                )
+            else:
+                decision.reason = f"dropped: disagrees with the other loops (graph weight {weight:.2f})"
     before = np.stack([node.pose for node in nodes])
     if edges:
         poses = correct_frames(odometry_poses, [n.position for n in nodes], before, graph.node_poses)
@@ -353,7 +368,8 @@ def close_loops(
         poses = np.array(odometry_poses, copy=True)
     phase.seconds["graph"] = time.perf_counter() - started
     up = {"used": False} if graph.up is None else graph.up.to_dict() | {"dropped": graph.up_dropped}
-    return ClosedLoops(decisions, poses, up)
+    scale = None if graph.odometry is None else graph.odometry.to_dict()
+    return ClosedLoops(decisions, poses, up, scale)
 
 
 def _map_from_nodes(
