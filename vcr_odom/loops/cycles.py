@@ -3,9 +3,9 @@
 Two loops between the same two passages close a cycle through two short stretches of odometry (one
 between their sources, one between their targets): its misclosure is those stretches' error plus the
 two loops'. Over every such pair, the median misclosure, in the pose graph's own odometry sigmas, says
-whether the odometry is noisier than the drift model assumes (a handheld 16-beam walk at 10 Hz: five
-times); and a loop whose cycles with the loops near it mostly misclose is wrong, whatever the graph
-could bend the odometry into.
+whether the odometry is noisier than the drift model assumes (handheld 16-beam walks at 10 Hz: 5-6.5
+times), and the graph's robust rounds scale its sigmas by it; a loop whose cycles with the loops near
+it mostly misclose is wrong, whatever the graph could bend the odometry into.
 """
 
 from __future__ import annotations
