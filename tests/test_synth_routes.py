@@ -64,6 +64,17 @@ def test_loop_is_driven_past_its_start_in_the_same_direction() -> None:
     assert min(p.target for p in pairs) < 10  # the first frames' place is passed again
 
 
+def test_a_short_walk_goes_round_a_short_loop() -> None:
+    """A minute's walk (600 frames at 10 Hz, ~70 m) comes back to its start, as the campus loops
+    people record with a handheld scanner do; a car's loop is a city block (250 m) at least."""
+    walk = SynthSequence(frames=600, seed=881, route="loop", motion="handheld", sensor="avia")
+    assert walk.scene.road.length < 70.0
+    pairs = true_revisits(walk)
+    assert pairs and min(p.distance_m for p in pairs) < 0.5 and min(p.target for p in pairs) < 30
+    car = SynthSequence(frames=60, seed=881, route="loop")
+    assert car.scene.road.length >= 250.0
+
+
 def test_a_revisited_place_is_the_same_geometry() -> None:
     """The scene is a function of the seed and route, not of time: the world built for a later window
     casts the same scan, and the later frame lies on the geometry around the earlier one."""

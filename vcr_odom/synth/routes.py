@@ -14,7 +14,8 @@ places they have seen (loop-closure tests) and one that only seems to.
 
 Closed routes and the return are sized to the motion (``travel``: how far a path takes the car or
 walker in its frames), so the revisit happens whatever the frame count and speed: a lap is the
-distance travelled / 1.25 (within :data:`LOOP_PERIMETER` or :data:`FIGURE8_PERIMETER`), and the
+distance travelled / 1.25 (within :data:`LOOP_PERIMETER`, :data:`WALK_LOOP_PERIMETER` for a walk, or
+:data:`FIGURE8_PERIMETER`), and the
 turn comes where the way back passes the start by :data:`PAST_START`. The street is a function of
 the seed, the route and that size only: a place revisited is the same geometry every time.
 """
@@ -43,6 +44,10 @@ LAPS = 1.25
 """Laps of a loop or figure eight the drive covers (when the perimeter's bounds allow)."""
 LOOP_PERIMETER = (250.0, 1500.0)
 """Bounds (m) on a loop's perimeter: a city block at least, and longer drives go round more often."""
+WALK_LOOP_PERIMETER = (50.0, 1500.0)
+"""The same for a walk (``--motion handheld``): a loop round one building, the scale of the campus loops
+people record with a handheld scanner (~60 m), where a car's city block would leave a short walk
+without any revisit."""
 FIGURE8_PERIMETER = (400.0, 2000.0)
 """Bounds (m) on a figure eight's length (both lobes)."""
 PAST_START = (5.0, 40.0)
@@ -56,13 +61,15 @@ Travel = Callable[[Road], float]
 """How far (m) along a path the motion takes the sensor from its first frame to its last."""
 
 
-def build_route(route: str, seed: int, style: SceneStyle, length: float, travel: Travel) -> RouteWorld:
+def build_route(
+    route: str, seed: int, style: SceneStyle, length: float, travel: Travel, walked: bool = False
+) -> RouteWorld:
     """The street and path of a route other than ``street``, for a motion that needs at most
     ``length`` metres of path after its preroll (as the open street is sized) and travels
-    ``travel(path)`` metres along a given path."""
+    ``travel(path)`` metres along a given path; ``walked``: a walker's, whose loops may be short."""
     terrain = Terrain.random(np.random.default_rng([seed, 2]))
     if route in ("loop", "figure8"):
-        return _closed(route, seed, style, terrain, length, travel)
+        return _closed(route, seed, style, terrain, length, travel, walked)
     if route == "return":
         return _out_and_back(seed, style, terrain, length, travel)
     if route == "blocks":
@@ -71,10 +78,13 @@ def build_route(route: str, seed: int, style: SceneStyle, length: float, travel:
 
 
 def _closed(
-    route: str, seed: int, style: SceneStyle, terrain: Terrain, length: float, travel: Travel
+    route: str, seed: int, style: SceneStyle, terrain: Terrain, length: float, travel: Travel, walked: bool
 ) -> RouteWorld:
     """A loop or figure eight with a perimeter of the travel / :data:`LAPS`, driven round and round."""
-    make, bounds = (loop_lap, LOOP_PERIMETER) if route == "loop" else (figure8_lap, FIGURE8_PERIMETER)
+    if route == "loop":
+        make, bounds = loop_lap, WALK_LOOP_PERIMETER if walked else LOOP_PERIMETER
+    else:
+        make, bounds = figure8_lap, FIGURE8_PERIMETER
 
     def build(perimeter: float) -> tuple[Lap, DrivePath]:
         lap = make(np.random.default_rng([seed, 30]), perimeter)

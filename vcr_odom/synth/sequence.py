@@ -118,9 +118,10 @@ class SynthConfig(Settings):
         "the street's end and back in the other direction's lane past the start (revisits at 180 deg, "
         "a lane apart; beyond the median on avenues and highways). blocks: a straight street whose "
         "roadside repeats exactly every 30-60 m, driven once (look-alike places, no revisit). Loops "
-        "(250-1500 m round), figure eights (400-2000 m) and returns are sized to the frames and speed: "
-        "at 10 m/s and 10 Hz the first revisit comes after about 350 frames on a loop or figure eight "
-        "and 200 on a return; a walk needs about 2500 and 1000. In the indoor scene: loop goes round its "
+        "(250-1500 m round; walked, 50-1500 m), figure eights (400-2000 m) and returns are sized to the "
+        "frames and speed: at 10 m/s and 10 Hz the first revisit comes after about 350 frames on a loop "
+        "or figure eight and 200 on a return; a walk at 10 Hz needs about 450 on a loop (a 50 m lap "
+        "round one building), 2500 on a figure eight and 1000 on a return. In the indoor scene: loop goes round its "
         "corridor ring about 1.25 times (40-250 m round), return walks out along the corridors, turns "
         "round in a hall and walks back past the start; both are sized to the walk.",
     )
@@ -267,7 +268,10 @@ class SynthSequence:
         reach = self.frames * self.frame_period * fastest + self.sensor.max_range + 60.0
         if self.route == "street":
             return StreetScene(self.seed, reach, scene=self.scene_style)
-        world = build_route(self.route, self.seed, scene_style(self.scene_style), reach, self._travel)
+        style = scene_style(self.scene_style)
+        world = build_route(
+            self.route, self.seed, style, reach, self._travel, walked=self.motion == "handheld"
+        )
         return StreetScene(self.seed, reach, scene=self.scene_style, world=world)
 
     def _travel(self, path: Road) -> float:
