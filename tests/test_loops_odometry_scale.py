@@ -47,6 +47,11 @@ def _noisy_circle(noise_factor: float, seed: int = 7) -> tuple[list, list[Node]]
     return truth, nodes
 
 
+def _sigmas(nodes: list[Node]) -> tuple[np.ndarray, np.ndarray]:
+    poses = np.stack([node.pose for node in nodes])
+    return DriftModel().chain_sigmas(poses, np.diff([node.position for node in nodes]).tolist())
+
+
 def _true_loops(truth: list) -> list[LoopEdge]:
     return [LoopEdge(j, j - 60, invert(truth[j - 60]) @ truth[j], LOOP_INFORMATION) for j in range(60, 91, 2)]
 
@@ -54,7 +59,7 @@ def _true_loops(truth: list) -> list[LoopEdge]:
 @pytest.mark.parametrize("seed", [7, 8])
 def test_an_odometry_within_the_model_keeps_its_sigmas(seed: int) -> None:
     truth, nodes = _noisy_circle(0.5, seed)
-    scale = odometry_scale(loop_cycles(nodes, _true_loops(truth), DriftModel()))
+    scale = odometry_scale(loop_cycles(nodes, _true_loops(truth), _sigmas(nodes)))
     assert scale.cycles >= 50
     assert scale.median_ratio is not None and scale.median_ratio < 1.0
     assert scale.scale == 1.0
@@ -66,14 +71,14 @@ def test_loops_measure_an_odometry_noisier_than_the_model(seed: int) -> None:
     median of a 3-D normal's length is 0.89 of its RMS; the larger of the rotation and translation
     ratios is taken)."""
     truth, nodes = _noisy_circle(6.0, seed)
-    scale = odometry_scale(loop_cycles(nodes, _true_loops(truth), DriftModel()))
+    scale = odometry_scale(loop_cycles(nodes, _true_loops(truth), _sigmas(nodes)))
     assert 3.0 < scale.scale < 10.0
 
 
 def test_few_cycles_leave_the_sigmas_alone() -> None:
     truth, nodes = _noisy_circle(6.0)
     two_loops = _true_loops(truth)[:2]
-    scale = odometry_scale(loop_cycles(nodes, two_loops, DriftModel()))
+    scale = odometry_scale(loop_cycles(nodes, two_loops, _sigmas(nodes)))
     assert scale.cycles == 1 and scale.scale == 1.0
 
 

@@ -20,7 +20,6 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from vcr_odom.geometry import Transform, invert
-from vcr_odom.loops.drift import DriftModel
 from vcr_odom.loops.nodes import Node
 
 if TYPE_CHECKING:
@@ -61,10 +60,17 @@ class OdometryScale:
         return {"scale": round(self.scale, 3), "cycles": self.cycles, "median_ratio": ratio}
 
 
-def loop_cycles(nodes: Sequence[Node], loops: Sequence[LoopEdge], drift: DriftModel) -> list[Cycle]:
-    """Every pair of loops whose sources, and whose targets, are within :data:`CYCLE_SPAN_M` of path."""
+def loop_cycles(
+    nodes: Sequence[Node],
+    loops: Sequence[LoopEdge],
+    step_sigmas: tuple[NDArray[np.float64], NDArray[np.float64]],
+) -> list[Cycle]:
+    """Every pair of loops whose sources, and whose targets, are within :data:`CYCLE_SPAN_M` of path;
+    ``step_sigmas`` the odometry edges' (m, rad: :meth:`~vcr_odom.loops.drift.DriftModel.chain_sigmas`)."""
     path = np.array([node.path_m for node in nodes])
-    variance_t, variance_r = _cumulative_step_variances(nodes, drift)
+    variance_t = np.concatenate([[0.0], np.cumsum(step_sigmas[0] ** 2)])
+    variance_r = np.concatenate([[0.0], np.cumsum(step_sigmas[1] ** 2)])
+    loop_variances = [_loop_variances(loop) for loop in loops]
     order = sorted(range(len(loops)), key=lambda k: loops[k].source)
     cycles = []
     for rank, i in enumerate(order):
@@ -82,10 +88,9 @@ def loop_cycles(nodes: Sequence[Node], loops: Sequence[LoopEdge], drift: DriftMo
                 rotation = variance_r[hi] - variance_r[lo]
                 expected_r += rotation
                 expected_t += variance_t[hi] - variance_t[lo] + rotation * lever**2
-            for loop in (first, second):
-                covariance = np.linalg.inv(loop.information)
-                expected_r += float(np.trace(covariance[:3, :3])) / 3
-                expected_t += float(np.trace(covariance[3:, 3:])) / 3
+            for loop in (i, j):
+                expected_r += loop_variances[loop][0]
+                expected_t += loop_variances[loop][1]
             misclosure = _misclosure(nodes, first, second)
             rotation_ratio = float(np.linalg.norm(misclosure[:3])) / math.sqrt(3 * expected_r)
             translation_ratio = float(np.linalg.norm(misclosure[3:])) / math.sqrt(3 * expected_t)
@@ -118,20 +123,10 @@ def cycle_outliers(cycles: Sequence[Cycle], scale: float) -> dict[int, tuple[int
     return {loop: (bad, total) for loop, (bad, total) in counts.items() if total >= 3 and 2 * bad > total}
 
 
-def _cumulative_step_variances(
-    nodes: Sequence[Node], drift: DriftModel
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """The odometry's translation and rotation variance from the first node to each, summed over its
-    edges as the graph weighs them."""
-    variance_t, variance_r = np.zeros(len(nodes)), np.zeros(len(nodes))
-    for k in range(len(nodes) - 1):
-        motion = invert(nodes[k].pose) @ nodes[k + 1].pose
-        sigma_t, sigma_r = drift.step_sigmas(
-            float(np.linalg.norm(motion[:3, 3])), nodes[k + 1].position - nodes[k].position
-        )
-        variance_t[k + 1] = variance_t[k] + sigma_t**2
-        variance_r[k + 1] = variance_r[k] + sigma_r**2
-    return variance_t, variance_r
+def _loop_variances(loop: LoopEdge) -> tuple[float, float]:
+    """A loop's mean variance per axis, rotation (rad^2) and translation (m^2)."""
+    covariance = np.linalg.inv(loop.information)
+    return float(np.trace(covariance[:3, :3])) / 3, float(np.trace(covariance[3:, 3:])) / 3
 
 
 def _misclosure(nodes: Sequence[Node], first: LoopEdge, second: LoopEdge) -> NDArray[np.float64]:

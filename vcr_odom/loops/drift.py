@@ -9,7 +9,13 @@ between frames 30 m apart may correct decimetres. A false closure between two lo
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from vcr_odom.geometry import invert
 
 
 @dataclass(frozen=True)
@@ -60,3 +66,16 @@ class DriftModel:
         sigma_t = self.step_sigma_floor_m + self.step_sigma_rate * counted
         sigma_r = math.radians(self.step_sigma_floor_deg + self.step_sigma_deg_per_m * counted)
         return sigma_t, sigma_r
+
+    def chain_sigmas(
+        self, poses: NDArray[np.float64], frames: Sequence[int]
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """:meth:`step_sigmas` of each edge of a chain of poses (m, rad; one fewer than the poses),
+        ``frames`` the registrations along each: what the pose graph weighs its odometry by, and what
+        the loops' cycles (:mod:`~vcr_odom.loops.cycles`) measure it against."""
+        sigmas = [
+            self.step_sigmas(float(np.linalg.norm((invert(a) @ b)[:3, 3])), count)
+            for a, b, count in zip(poses[:-1], poses[1:], frames, strict=True)
+        ]
+        array = np.array(sigmas, dtype=np.float64).reshape(-1, 2)
+        return array[:, 0], array[:, 1]

@@ -165,13 +165,6 @@ def _turn_onto(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.flo
     return Rotation.from_rotvec(axis / sine * math.atan2(sine, float(a @ b))).as_matrix()
 
 
-def _odometry_information(
-    drift: DriftModel, motion: Transform, frames: int, scale: float = 1.0
-) -> NDArray[np.float64]:
-    sigma_t, sigma_r = drift.step_sigmas(float(np.linalg.norm(motion[:3, 3])), frames)
-    return np.diag([(scale * sigma_r) ** -2] * 3 + [(scale * sigma_t) ** -2] * 3)
-
-
 def _residual_chi2(poses: NDArray[np.float64], edge: GraphEdge) -> float:
     """``r^T I r`` of an edge under ``poses``, ``r`` the twist (rotation vector, translation) of the
     disagreement between the edge and the poses."""
@@ -194,14 +187,15 @@ def optimise(
     if not loops:
         return GraphResult(odometry.copy(), [], [])
     up = up_priors(nodes, attitude_sigma_deg)
-    cycles = loop_cycles(nodes, loops, drift)
+    sigmas = drift.chain_sigmas(odometry, frames)
+    cycles = loop_cycles(nodes, loops, sigmas)
     scale = odometry_scale(cycles)
     outliers = cycle_outliers(cycles, scale.scale)
     edges: list[GraphEdge] = [*loops, *up.edges]
     weights = [0.0 if k in outliers else 1.0 for k in range(len(edges))]
     poses = odometry
     for _ in range(ROUNDS):
-        poses = _solve(odometry, frames, edges, weights, drift, scale.scale)
+        poses = _solve(odometry, sigmas, edges, weights, scale.scale)
         chi2 = [_residual_chi2(poses, edge) for edge in edges]
         new = [
             0.0 if k in outliers else 1.0 / (1.0 + c / (edge.dof * CAUCHY_SCALE**2))
@@ -215,28 +209,28 @@ def optimise(
         w * (LOOP_SHARE if isinstance(edge, LoopEdge) else 1.0) if k else 0.0
         for w, k, edge in zip(weights, kept, edges, strict=True)
     ]
-    poses = _solve(odometry, frames, edges, final, drift)
+    poses = _solve(odometry, sigmas, edges, final)
     n = len(loops)
     return GraphResult(poses, weights[:n], kept[:n], up, kept[n:].count(False), scale, outliers)
 
 
 def _solve(
     odometry: NDArray[np.float64],
-    frames: Sequence[int],
+    sigmas: tuple[NDArray[np.float64], NDArray[np.float64]],
     loops: Sequence[GraphEdge],
     weights: Sequence[float],
-    drift: DriftModel,
     scale: float = 1.0,
 ) -> NDArray[np.float64]:
-    """The graph solved once: ``odometry`` the node poses, ``frames`` the registrations between each
-    node and the next, ``scale`` the odometry sigmas' factor (:func:`~vcr_odom.loops.cycles.odometry_scale`)."""
+    """The graph solved once: ``odometry`` the node poses, ``sigmas`` its edges' (m, rad:
+    :meth:`~vcr_odom.loops.drift.DriftModel.chain_sigmas`), ``scale`` their factor
+    (:func:`~vcr_odom.loops.cycles.odometry_scale`)."""
     registration = o3d.pipelines.registration
     graph = registration.PoseGraph()
     for pose in odometry:
         graph.nodes.append(registration.PoseGraphNode(pose))
-    for k in range(len(odometry) - 1):
+    for k, (sigma_t, sigma_r) in enumerate(zip(*sigmas, strict=True)):
         motion = invert(odometry[k]) @ odometry[k + 1]
-        info = _odometry_information(drift, motion, frames[k], scale)
+        info = np.diag([(scale * sigma_r) ** -2] * 3 + [(scale * sigma_t) ** -2] * 3)
         graph.edges.append(registration.PoseGraphEdge(k + 1, k, motion, info, uncertain=False))
     for loop, weight in zip(loops, weights, strict=True):
         if weight > 0:

@@ -15,9 +15,9 @@ places they have seen (loop-closure tests) and one that only seems to.
 Closed routes and the return are sized to the motion (``travel``: how far a path takes the car or
 walker in its frames), so the revisit happens whatever the frame count and speed: a lap is the
 distance travelled / 1.25 (within :data:`LOOP_PERIMETER`, :data:`WALK_LOOP_PERIMETER` for a walk, or
-:data:`FIGURE8_PERIMETER`), and the
-turn comes where the way back passes the start by :data:`PAST_START`. The street is a function of
-the seed, the route and that size only: a place revisited is the same geometry every time.
+:data:`FIGURE8_PERIMETER`), and the turn comes where the way back passes the start by
+:data:`PAST_START`. The street is a function of the seed, the route and that size only: a place
+revisited is the same geometry every time.
 """
 
 from __future__ import annotations
