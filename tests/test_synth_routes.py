@@ -19,6 +19,7 @@ from vcr_odom.errors import ConfigError
 from vcr_odom.evaluation.revisits import true_revisits
 from vcr_odom.geometry import transform_points
 from vcr_odom.synth import SENSOR_MODELS, LidarSimulator, MeshPart, Surface, SynthConfig, SynthSequence
+from vcr_odom.synth.courtyard import wall_samples
 from vcr_odom.synth.layout import StreetLayout
 from vcr_odom.synth.road import ROAD_STEP
 
@@ -73,6 +74,28 @@ def test_a_short_walk_goes_round_a_short_loop() -> None:
     assert pairs and min(p.distance_m for p in pairs) < 0.5 and min(p.target for p in pairs) < 30
     car = SynthSequence(frames=60, seed=881, route="loop")
     assert car.scene.road.length >= 250.0
+
+
+def test_a_short_walk_goes_round_a_building_in_a_courtyard() -> None:
+    """A short walked loop circles a building on a footpath a couple of metres from its walls, with
+    buildings facing it across a lawn, as on a campus: the walk stays clear of every wall, and the
+    walls are what its frames see (a street bent into a 55 m loop had nothing inside it)."""
+    walk = SynthSequence(frames=600, seed=881, route="loop", motion="handheld", sensor="avia")
+    courtyard = walk.scene.layout.features.courtyard
+    assert courtyard is not None and courtyard.outer
+    world = walk.world_poses
+    inner = cKDTree(wall_samples(courtyard.inner))
+    outer = cKDTree(np.concatenate([wall_samples(facade, closed=False) for facade in courtyard.outer]))
+    to_inner, to_outer = inner.query(world[:, :2, 3])[0], outer.query(world[:, :2, 3])[0]
+    assert to_inner.min() > 1.5 and to_inner.max() < 8.0  # a couple of metres from the walls
+    assert to_outer.min() > 6.0  # across a lawn
+    on_walls = []  # share of each frame's points on the courtyard's walls
+    for i in range(0, len(world), 30):
+        plan = transform_points(world[i], _near(walk.frame(i), 40.0))[:, :2]
+        on_walls.append(np.mean(np.minimum(inner.query(plan)[0], outer.query(plan)[0]) < 0.5))
+    assert np.mean(np.array(on_walls) >= 0.05) >= 0.8, np.round(on_walls, 2)
+    # a car's loop keeps its street: no courtyard
+    assert SynthSequence(frames=60, seed=881, route="loop").scene.layout.features.courtyard is None
 
 
 def test_a_revisited_place_is_the_same_geometry() -> None:

@@ -14,11 +14,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from vcr_odom.synth.layout import ZoneKind
-from vcr_odom.synth.mesh import MeshBuilder, MeshPart, Surface
+from vcr_odom.synth.layout import Profile, ZoneKind
+from vcr_odom.synth.mesh import FloatArray, MeshBuilder, MeshPart, Surface
 from vcr_odom.synth.parts import PlanFrame, rect
 
 if TYPE_CHECKING:
+    from vcr_odom.synth.courtyard import Courtyard
     from vcr_odom.synth.roadside import RoadsideBlock
 
 
@@ -129,6 +130,49 @@ def building(
         floors = max(1, floors0 + int(rng.integers(-1, 2)) * (n_seg > 1))
         heights = [ground_h] + [floor_h] * (floors - 1)
         _building_segment(block, frame, sign, (u0, u1), f, depth, base, floor0, heights, albedo, gable, style)
+
+
+COURTYARD_DEPTH = 3.0
+"""Metres of body behind each wall of a courtyard's buildings (a roof closes the one inside)."""
+
+
+def courtyard_buildings(block: RoadsideBlock, courtyard: Courtyard, profile: Profile) -> None:
+    """The buildings of a short walked loop's courtyard (:mod:`~vcr_odom.synth.courtyard`) in the
+    zone's style: the one inside, each wall a segment facing out, one height all round, a flat roof
+    over it; and across the lawn, a building behind each outer facade, facing in."""
+    rng = block.rng
+    kind = profile.kind if profile.kind in BUILDING_STYLES else ZoneKind.RESIDENTIAL
+    style = block.layout.style.buildings.get(kind, BUILDING_STYLES[kind])
+    corners = courtyard.inner
+    ring = np.vstack([corners, corners[:1]])
+    top = _walled_building(block, list(itertools.pairwise(ring)), 1.0, style)
+    roof = np.vstack([[0.0, 0.0, top], np.column_stack([corners, np.full(len(corners), top)])])
+    fan = [[0, 1 + i, 1 + (i + 1) % len(corners)] for i in range(len(corners))]
+    block.mesh.add(roof, fan, Surface.ROOF, float(rng.uniform(0.1, 0.35)))
+    for facade in courtyard.outer:
+        _walled_building(block, [(facade[0], facade[1])], -1.0, style)
+
+
+def _walled_building(
+    block: RoadsideBlock, walls: list[tuple[FloatArray, FloatArray]], sign: float, style: BuildingStyle
+) -> float:
+    """A building of one height and wall colour whose facades run from each wall's start to its end,
+    its body to their left (``sign`` 1) or right (-1); the top of its walls (m)."""
+    rng = block.rng
+    along = np.concatenate([np.linspace(a, b, 8) for a, b in walls])
+    ground = block.ground(along)
+    base, floor0 = ground.min() - 0.6, ground.max()
+    albedo = float(rng.uniform(*style.wall_albedo))
+    floors = max(2, int(rng.integers(style.floors[0], style.floors[1] + 1)))
+    heights = [rng.uniform(*style.ground_h)] + [rng.uniform(*style.floor_h)] * (floors - 1)
+    for a, b in walls:
+        length = float(np.linalg.norm(b - a))
+        frame = PlanFrame(a, math.atan2(b[1] - a[1], b[0] - a[0]))
+        _building_segment(
+            block, frame, sign, (0.0, length), 0.0, COURTYARD_DEPTH, base, floor0, heights, albedo,
+            False, style,
+        )  # fmt: skip
+    return floor0 + sum(heights)
 
 
 def _building_segment(

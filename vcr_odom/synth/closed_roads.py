@@ -33,25 +33,29 @@ class SelfCrossing:
 
 @dataclass(frozen=True)
 class Lap:
-    """One lap of a closed street (``road.xy[-1] == road.xy[0]``), where it crosses itself, and the
-    lap station where the drive's first frame should be."""
+    """One lap of a closed street (``road.xy[-1] == road.xy[0]``), where it crosses itself, the
+    lap station where the drive's first frame should be, and for a loop the corners ``(K, 2)``
+    (counter-clockwise, round the origin) of the polygon its road rounds off."""
 
     road: Road
     crossings: tuple[SelfCrossing, ...]
     start: float
+    corners: FloatArray | None = None
 
     @property
     def perimeter(self) -> float:
         return self.road.length
 
 
-def _scaled_lap(xy: FloatArray, perimeter: float) -> Road:
-    """A dense closed polyline (first point not repeated) scaled to ``perimeter`` and resampled."""
+def _scaled_lap(xy: FloatArray, perimeter: float) -> tuple[Road, float]:
+    """A dense closed polyline (first point not repeated) scaled to ``perimeter`` and resampled,
+    and the scale it was drawn at."""
     ring = np.vstack([xy, xy[:1]])
     length = float(np.linalg.norm(np.diff(ring, axis=0), axis=1).sum())
     steps = max(8, round(perimeter / ROAD_STEP))
-    road, _ = resample(ring * (steps * ROAD_STEP / length), closed=True)
-    return road
+    scale = steps * ROAD_STEP / length
+    road, _ = resample(ring * scale, closed=True)
+    return road, scale
 
 
 def _periodic_gaussian(xy: FloatArray, sigma_points: float) -> FloatArray:
@@ -83,8 +87,8 @@ def loop_lap(rng: np.random.Generator, perimeter: float) -> Lap:
     if rng.random() < 0.5:
         rounded = rounded[::-1]
     shift = int(rng.integers(0, DENSE))  # where station 0 (the zones' seam) lies
-    road = _scaled_lap(np.roll(rounded, -shift, axis=0), perimeter)
-    return Lap(road, (), float(rng.uniform(0.0, road.length)))
+    road, scale = _scaled_lap(np.roll(rounded, -shift, axis=0), perimeter)
+    return Lap(road, (), float(rng.uniform(0.0, road.length)), polygon * scale)
 
 
 def figure8_lap(rng: np.random.Generator, perimeter: float) -> Lap:
@@ -103,7 +107,7 @@ def figure8_lap(rng: np.random.Generator, perimeter: float) -> Lap:
     )
     if rng.random() < 0.5:
         xy = np.vstack([xy[:1], xy[:0:-1]])  # the other way round, still from the tip
-    road = _scaled_lap(xy, perimeter)
+    road, _ = _scaled_lap(xy, perimeter)
     crossings = self_crossings(road)
     start = (crossings[0].first - 0.1 * road.length) % road.length if crossings else 0.0
     return Lap(road, crossings, float(start))

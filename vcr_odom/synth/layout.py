@@ -8,14 +8,15 @@ network trained on the scene sees the variety of KITTI's drives rather than one 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from enum import IntEnum
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
+from vcr_odom.synth.courtyard import FOOTPATH_SETBACK, FOOTPATH_SIDEWALK, FOOTPATH_WIDTH, Courtyard
 from vcr_odom.synth.mesh import FloatArray
 from vcr_odom.synth.road import PREROLL, ROAD_STEP, Road, Terrain
 
@@ -87,6 +88,29 @@ class Profile:
     def outer(self, side: int) -> float:
         return self.curb(side) + self.sidewalk[side]
 
+    def footpath(self, building_side: int) -> Profile:
+        """This zone's cross-section narrowed to a paved path round a building on ``building_side``
+        (:mod:`~vcr_odom.synth.courtyard`): no lanes beside it, no parking, nothing between the path
+        and the building's walls, and on the other side a sidewalk and yards of a few metres."""
+        inner, outer = building_side, 1 - building_side
+        return replace(
+            self,
+            lane_width=FOOTPATH_WIDTH,
+            lanes_left=0,
+            parking=(0.0, 0.0),
+            median=0.0,
+            power_line=-1,
+            sidewalk=_sides(inner, 0.0, outer, min(self.sidewalk[outer], FOOTPATH_SIDEWALK)),
+            frontage=_sides(inner, "none", outer, self.frontage[outer]),
+            street_trees=_sides(inner, 0.0, outer, self.street_trees[outer]),
+            setback=_sides(inner, 0.0, outer, min(self.setback[outer], FOOTPATH_SETBACK)),
+        )
+
+
+def _sides(a: int, a_value: Any, b: int, b_value: Any) -> tuple[Any, Any]:
+    """A (right, left) pair from the values of sides ``a`` and ``b`` (one 0, the other 1)."""
+    return (a_value, b_value) if a == 0 else (b_value, a_value)
+
 
 def random_profile(rng: np.random.Generator, kind: ZoneKind) -> Profile:
     """Street cross-sections typical of each kind of zone (KITTI's Karlsruhe: towns, suburbs, roads)."""
@@ -150,12 +174,15 @@ class RouteFeatures:
     station, angle in deg) where the road crosses itself; nothing is built there. ``turning_loop``:
     the centre line ``(N, 2)`` of a turning loop beyond the road's end, kept clear like a carriageway.
     ``single_zone``: one cross-section all along and no cross streets (repeated blocks).
+    ``courtyard``: the buildings a short walked loop goes round and between; the road is then a
+    footpath (:meth:`Profile.footpath`) in a single zone.
     """
 
     closed: bool = False
     self_crossings: tuple[tuple[float, float, float], ...] = ()
     turning_loop: FloatArray | None = field(default=None, repr=False)
     single_zone: bool = False
+    courtyard: Courtyard | None = None
 
 
 TURNING_LOOP_HALF_WIDTH = 3.5
@@ -245,12 +272,15 @@ class StreetLayout:
         first metres on and continuous across its seam, none within 60 m of where the road crosses
         itself, and a single zone without cross streets for repeated blocks."""
         style = self.style
-        starts, profiles = [0.0], [self._draw_profile(rng, with_buildings=features.single_zone)]
+        courtyard = features.courtyard
+        first = self._draw_profile(rng, with_buildings=features.single_zone or courtyard is not None)
+        starts, profiles = [0.0], [first if courtyard is None else first.footpath(courtyard.side)]
         crossings: list[float] = []
         half_widths: list[float] = []
         own = [station for crossing in features.self_crossings for station in crossing[:2]]
         s = (0.0 if features.closed else PREROLL) + rng.uniform(30.0, 120.0)
-        while not features.single_zone and s < self.road.length - 60.0:
+        single_zone = features.single_zone or courtyard is not None
+        while not single_zone and s < self.road.length - 60.0:
             _, _, curvature = self.road.sample(np.arange(s - 25.0, s + 25.0, 5.0))
             clear = all(self._apart(s, station) >= 60.0 for station in own)
             if clear and np.max(np.abs(curvature)) < 1.0 / 80.0:

@@ -14,7 +14,7 @@ from collections.abc import Callable
 import numpy as np
 from numpy.typing import ArrayLike
 
-from vcr_odom.synth.buildings import BUILDING_STYLES, building
+from vcr_odom.synth.buildings import BUILDING_STYLES, building, courtyard_buildings
 from vcr_odom.synth.layout import Profile, StreetLayout, ZoneKind
 from vcr_odom.synth.mesh import FloatArray, MeshBuilder, MeshPart, Surface
 from vcr_odom.synth.parts import (
@@ -88,6 +88,8 @@ class RoadsideBlock:
 
     # -- the whole block
     def build(self) -> MeshPart:
+        features = self.layout.features
+        courtyard = features.courtyard if features is not None else None
         for lo, hi in self.layout.free_intervals(self.s0, self.s1):
             profile = self.layout.profile_at(0.5 * (lo + hi))
             self.lane_markings(lo, hi, profile)
@@ -95,11 +97,16 @@ class RoadsideBlock:
                 self.median(lo, hi, profile)
             for side in (0, 1):
                 self.sidewalk(lo, hi, side, profile)
+                if courtyard is not None and side == courtyard.side:
+                    continue  # the verge between the path and the building inside stays clear
                 self.frontage(lo, hi, side, profile)
                 self.parked_cars(lo, hi, side, profile)
-                self.buildings(lo, hi, side, profile)
+                if courtyard is None:
+                    self.buildings(lo, hi, side, profile)  # the courtyard's stand across the lawn
                 self.yards(lo, hi, side, profile)
                 self.street_furniture(lo, hi, side, profile)
+        if courtyard is not None and self.s0 == 0.0:
+            courtyard_buildings(self, courtyard, self.layout.profile_at(0.0))
         self.intersection_furniture()
         return self.mesh.build()
 

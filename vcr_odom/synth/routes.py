@@ -29,6 +29,7 @@ from typing import Literal, get_args
 import numpy as np
 
 from vcr_odom.synth.closed_roads import Lap, figure8_lap, loop_lap
+from vcr_odom.synth.courtyard import fit_courtyard
 from vcr_odom.synth.layout import Profile, RouteFeatures, StreetLayout
 from vcr_odom.synth.paths import DrivePath, unroll
 from vcr_odom.synth.repeating import block_period, periodic_terrain, straight_road
@@ -47,7 +48,8 @@ LOOP_PERIMETER = (250.0, 1500.0)
 WALK_LOOP_PERIMETER = (50.0, 1500.0)
 """The same for a walk (``--motion handheld``): a loop round one building, the scale of the campus loops
 people record with a handheld scanner (~60 m), where a car's city block would leave a short walk
-without any revisit."""
+without any revisit. A walked loop shorter than a car's is a footpath round a building in a courtyard
+(:mod:`~vcr_odom.synth.courtyard`), not a street."""
 FIGURE8_PERIMETER = (400.0, 2000.0)
 """Bounds (m) on a figure eight's length (both lobes)."""
 PAST_START = (5.0, 40.0)
@@ -99,7 +101,10 @@ def _closed(
         perimeter = wanted
         lap, path = build(perimeter)
     crossings = tuple((c.first, c.second, c.angle_deg) for c in lap.crossings)
-    features = RouteFeatures(closed=True, self_crossings=crossings)
+    courtyard = None
+    if walked and lap.corners is not None and perimeter < LOOP_PERIMETER[0]:
+        courtyard = fit_courtyard(lap.corners, lap.road, np.random.default_rng([seed, 31]))
+    features = RouteFeatures(closed=True, self_crossings=crossings, courtyard=courtyard)
     layout = StreetLayout(lap.road, terrain, np.random.default_rng([seed, 3]), style, features)
     return RouteWorld(lap.road, terrain, layout, path)
 

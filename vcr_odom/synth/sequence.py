@@ -121,7 +121,8 @@ class SynthConfig(Settings):
         "(250-1500 m round; walked, 50-1500 m), figure eights (400-2000 m) and returns are sized to the "
         "frames and speed: at 10 m/s and 10 Hz the first revisit comes after about 350 frames on a loop "
         "or figure eight and 200 on a return; a walk at 10 Hz needs about 450 on a loop (a 50 m lap "
-        "round one building), 2500 on a figure eight and 1000 on a return. In the indoor scene: loop goes round its "
+        "on a footpath round a building, with more buildings round the courtyard), 2500 on a figure "
+        "eight and 1000 on a return. In the indoor scene: loop goes round its "
         "corridor ring about 1.25 times (40-250 m round), return walks out along the corridors, turns "
         "round in a hall and walks back past the start; both are sized to the walk.",
     )
