@@ -29,7 +29,8 @@ ATTEMPT_SPACING_M = 6.0
 class LoopCandidate:
     """Node ``source`` (the later visit) against node ``target`` (the earlier one); ``prior`` is the
     odometry's ``T_target_source``, ``path_m`` the distance driven between them, ``frames`` the
-    registrations between them."""
+    registrations between them, ``turned_deg`` the angle the sensor turned between them (each
+    registration's rotation, summed)."""
 
     source: int
     target: int
@@ -37,6 +38,7 @@ class LoopCandidate:
     path_m: float
     distance_m: float
     frames: int = 0
+    turned_deg: float = 0.0
 
 
 def find_candidates(
@@ -65,7 +67,8 @@ def find_candidates(
         frames = int(node.position - positions_in_run[i])
         if distances[best] <= revisit_radius_m + drift.translation_bound(travelled, frames):
             prior = invert(nodes[i].pose) @ node.pose
-            nearest[j] = LoopCandidate(j, i, prior, travelled, float(distances[best]), frames)
+            turned = node.turned_deg - nodes[i].turned_deg
+            nearest[j] = LoopCandidate(j, i, prior, travelled, float(distances[best]), frames, turned)
     chosen: list[LoopCandidate] = []
     for passage in _passages(sorted(nearest)):
         picked: list[float] = []

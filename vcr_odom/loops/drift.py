@@ -35,9 +35,14 @@ class DriftModel:
     handheld scanner's drift, not a car's (0.3-0.7 deg / 100 m): no look-alike differs in heading
     only, and the three tuning walks (OS0, ~105 m loops) with their odometry turned 10 deg per 100 m
     (ATE 0.65-0.68 m, near the team's real OS0 walk's) kept none of their loops at 3 deg / 100 m
-    (``benchmarks/loop_drift.py``; docs/benchmarks.md, "Loops under odometry drift"). At most
-    :attr:`rotation_cap_deg`: the network registers within +-30 deg of the odometry's heading, and
-    a crossing's or a symmetric room's wrong fits are turned 90 deg.
+    (``benchmarks/loop_drift.py``; docs/benchmarks.md, "Loops under odometry drift"). A heading
+    error also grows with each turn the odometry measures, as a translation error does with each
+    registration: plus :attr:`rotation_per_turned` of the angle the sensor turned between the two
+    visits (each frame's rotation, summed). A handheld walk round a ~55 m courtyard turns 700-900 deg
+    in one lap (the lap and the looks about), and its odometry's heading came back 16-22 deg off
+    (2-3 %; a car turns 30-60 deg per 100 m). At most :attr:`rotation_cap_deg`: the network
+    registers within +-30 deg of the odometry's heading, and a crossing's or a symmetric room's wrong
+    fits are turned 90 deg.
     """
 
     translation_rate: float = 0.03
@@ -46,36 +51,42 @@ class DriftModel:
     translation_floor_m: float = 1.5
     rotation_floor_deg: float = 5.0
     rotation_cap_deg: float = 30.0
+    rotation_per_turned: float = 0.02
     step_sigma_rate: float = 0.01
     step_sigma_deg_per_m: float = 0.01
     step_sigma_floor_m: float = 0.02
     step_sigma_floor_deg: float = 0.1
+    step_sigma_per_turned: float = 0.002
 
     def translation_bound(self, path_m: float, frames: int = 0) -> float:
         counted = max(path_m, frames * self.path_per_frame_floor_m)
         return self.translation_floor_m + self.translation_rate * counted
 
-    def rotation_bound_deg(self, path_m: float) -> float:
-        return min(self.rotation_cap_deg, self.rotation_floor_deg + self.rotation_deg_per_m * path_m)
+    def rotation_bound_deg(self, path_m: float, turned_deg: float = 0.0) -> float:
+        grown = self.rotation_deg_per_m * path_m + self.rotation_per_turned * turned_deg
+        return min(self.rotation_cap_deg, self.rotation_floor_deg + grown)
 
-    def step_sigmas(self, step_m: float, frames: int = 0) -> tuple[float, float]:
-        """One odometry edge's standard deviations (m, rad) over ``step_m`` metres and ``frames``
+    def step_sigmas(self, step_m: float, frames: int = 0, turned_deg: float = 0.0) -> tuple[float, float]:
+        """One odometry edge's standard deviations (m, rad) over ``step_m`` metres, ``frames``
         registrations (each counted as :attr:`path_per_frame_floor_m` of path at least, as in the
-        bound): the pose graph's weight of the odometry against the loops."""
+        bound) and ``turned_deg`` of turning (a tenth of the bound's share, as per metre): the pose
+        graph's weight of the odometry against the loops."""
         counted = max(step_m, frames * self.path_per_frame_floor_m)
         sigma_t = self.step_sigma_floor_m + self.step_sigma_rate * counted
-        sigma_r = math.radians(self.step_sigma_floor_deg + self.step_sigma_deg_per_m * counted)
-        return sigma_t, sigma_r
+        sigma_deg = self.step_sigma_floor_deg + self.step_sigma_deg_per_m * counted
+        return sigma_t, math.radians(sigma_deg + self.step_sigma_per_turned * turned_deg)
 
     def chain_sigmas(
-        self, poses: NDArray[np.float64], frames: Sequence[int]
+        self, poses: NDArray[np.float64], frames: Sequence[int], turned_deg: Sequence[float] | None = None
     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """:meth:`step_sigmas` of each edge of a chain of poses (m, rad; one fewer than the poses),
-        ``frames`` the registrations along each: what the pose graph weighs its odometry by, and what
-        the loops' cycles (:mod:`~vcr_odom.loops.cycles`) measure it against."""
+        ``frames`` the registrations and ``turned_deg`` the turning along each: what the pose graph
+        weighs its odometry by, and what the loops' cycles (:mod:`~vcr_odom.loops.cycles`) measure it
+        against."""
+        turned = [0.0] * len(frames) if turned_deg is None else turned_deg
         sigmas = [
-            self.step_sigmas(float(np.linalg.norm((invert(a) @ b)[:3, 3])), count)
-            for a, b, count in zip(poses[:-1], poses[1:], frames, strict=True)
+            self.step_sigmas(float(np.linalg.norm((invert(a) @ b)[:3, 3])), count, turn)
+            for a, b, count, turn in zip(poses[:-1], poses[1:], frames, turned, strict=True)
         ]
         array = np.array(sigmas, dtype=np.float64).reshape(-1, 2)
         return array[:, 0], array[:, 1]

@@ -84,7 +84,8 @@ class LoopOptions(Settings):
         gt=0,
         le=100,
         description="How far the odometry's heading may drift between two visits, in deg per 100 m of "
-        f"path (plus {DriftModel.rotation_floor_deg:g} deg, at most {DriftModel.rotation_cap_deg:g} deg).",
+        f"path (plus {DriftModel.rotation_floor_deg:g} deg and {DriftModel.rotation_per_turned * 100:g} % "
+        f"of the angle turned between them, at most {DriftModel.rotation_cap_deg:g} deg).",
     )
     loops: bool = Field(default=True, description="False: the odometry and its map only (a baseline).")
     ground_up: bool = Field(

@@ -181,7 +181,7 @@ class LoopVerifier:
             "correction_m": round(correction_m, 3),
             "correction_deg": round(correction_deg, 3),
             "bound_m": round(self.drift.translation_bound(candidate.path_m, candidate.frames), 3),
-            "bound_deg": round(self.drift.rotation_bound_deg(candidate.path_m), 3),
+            "bound_deg": round(self.drift.rotation_bound_deg(candidate.path_m, candidate.turned_deg), 3),
             "network_input_kept_ground": self.ground_kept > kept_before,
             "submaps": submaps,
         }
@@ -300,7 +300,7 @@ class LoopVerifier:
         metres, degrees = _correction(candidate, measured)
         path = candidate.path_m
         bound_m = self.drift.translation_bound(path, candidate.frames)
-        return metres <= bound_m and degrees <= self.drift.rotation_bound_deg(path)
+        return metres <= bound_m and degrees <= self.drift.rotation_bound_deg(path, candidate.turned_deg)
 
 
 _CloudKey = tuple[int, tuple[int, ...] | None]
