@@ -187,7 +187,7 @@ def optimise(
     if not loops:
         return GraphResult(odometry.copy(), [], [])
     up = up_priors(nodes, attitude_sigma_deg)
-    sigmas = drift.chain_sigmas(odometry, frames, np.diff([node.turned_deg for node in nodes]).tolist())
+    sigmas = drift.chain_sigmas(odometry, frames)
     cycles = loop_cycles(nodes, loops, sigmas)
     scale = odometry_scale(cycles)
     outliers = cycle_outliers(cycles, scale.scale)
