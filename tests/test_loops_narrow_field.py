@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -138,3 +139,30 @@ def test_a_collapsed_odometry_does_not_confirm_itself_through_shared_submaps(fol
     decision = verify.LoopVerifier(VcrRegistrar(device="cpu")).verify(candidate, nodes)
     assert decision.scores["submaps"]
     assert not decision.accepted, decision.scores
+
+
+@pytest.mark.filterwarnings("ignore::vcr_odom.errors.DataWarning")
+@pytest.mark.parametrize(
+    ("other_arm", "ambiguous"),
+    [
+        (make_transform(np.eye(3), [20.0, 0.0, 0.0]), True),  # the same street further on
+        (make_transform(rotation_from_euler_zyx(math.radians(90.0), 0.0, 0.0), [0.0, 0.0, 0.0]), False),
+    ],
+    ids=["shifted", "turned"],
+)
+def test_a_better_fit_beyond_the_bound_is_a_second_answer_unless_turned(
+    crossing, monkeypatch, other_arm: np.ndarray, ambiguous: bool
+) -> None:
+    """Submaps: where the network's start ends on a fit beyond the drift bound that overlaps better
+    than the one within it, the place is ambiguous when that fit is only shifted (an odometry that
+    failed put a look-alike stretch within the bound: synthetic 884), not when it is turned like a
+    crossing's other arm (which fits too, and the odometry tells which is meant)."""
+    nodes, candidate, _ = crossing
+    within = SimpleNamespace(fitness=0.61, inlier_rmse=0.45, transformation=candidate.prior)
+    beyond = SimpleNamespace(fitness=0.72, inlier_rmse=0.45, transformation=candidate.prior @ other_arm)
+    calls = iter([beyond])  # the network's start is polished first; then the odometry's, then probes
+    monkeypatch.setattr(verify, "_polish", lambda *args: next(calls, within))
+    decision = verify.LoopVerifier(VcrRegistrar(device="cpu")).verify(candidate, nodes)
+    assert decision.scores["submaps"] and decision.scores["start"] == "odometry"
+    assert (decision.check == "ambiguous") is ambiguous, decision.reason
+    assert decision.accepted is not ambiguous
