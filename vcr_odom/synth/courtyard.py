@@ -36,8 +36,6 @@ SCALE_STEP = 0.02
 """Step (of the polygon's size) in which the walls are moved in or out until they clear the path."""
 WALL_STEP = 0.25
 """Metres between the wall samples checked against the path."""
-
-
 OUTER_TRIM = 0.1
 """Share of a side's length left open at each of its ends (passages between the buildings round the
 courtyard)."""

@@ -101,8 +101,8 @@ class RoadsideBlock:
                     continue  # the verge between the path and the building inside stays clear
                 self.frontage(lo, hi, side, profile)
                 self.parked_cars(lo, hi, side, profile)
-                if courtyard is None:
-                    self.buildings(lo, hi, side, profile)  # the courtyard's stand across the lawn
+                if courtyard is None:  # a courtyard's own buildings stand across the lawn instead
+                    self.buildings(lo, hi, side, profile)
                 self.yards(lo, hi, side, profile)
                 self.street_furniture(lo, hi, side, profile)
         if courtyard is not None and self.s0 == 0.0:
