@@ -197,7 +197,7 @@ class LoopVerifier:
             and not self._within_bound(candidate, other.transformation)
         ):
             other = None  # another arm of a crossing, not a fit the odometry could have drifted to
-        decision.check, decision.reason = self._judge(decision, fit, other, apart, scale)
+        decision.check, decision.reason = self._judge(decision, fit, other, apart_deg, scale)
         if not decision.check:
             returns_m = (SUBMAP_PROBE_RETURN_M if submaps else PROBE_RETURN_M) * scale
             decision.check, decision.reason = self._probe(
@@ -209,9 +209,10 @@ class LoopVerifier:
         return decision
 
     def _judge(
-        self, decision: LoopDecision, fit: Any, other: Any | None, apart: Transform, scale: float
+        self, decision: LoopDecision, fit: Any, other: Any | None, apart_deg: float, scale: float
     ) -> tuple[str, str]:
-        """The check failed (empty if none) and the reason ``loops.json`` gives."""
+        """The check failed (empty if none) and the reason ``loops.json`` gives; ``apart_deg``: the
+        turn between the two starts' fits."""
         scores = decision.scores
         if fit.fitness < MIN_FITNESS:
             return "overlap", f"rejected: overlap {fit.fitness:.2f} < {MIN_FITNESS}"
@@ -229,7 +230,6 @@ class LoopVerifier:
             )
         far_m, far_deg, close_fitness = AMBIGUITY
         far_m *= scale
-        apart_deg = math.degrees(float(rotation_angle(apart[:3, :3])))
         if (
             other is not None
             and (scores["starts_apart_m"] > far_m or apart_deg > far_deg)
