@@ -168,3 +168,55 @@ def test_motion_limits_scale_with_the_time_between_frames():
     assert "moved" in limits.violation(make_transform(np.eye(3), [5.0, 0.0, 0.0]), 0.1)
     assert "turned" in limits.violation(turn, 0.1)
     assert limits.violation(turn, 0.5) is None  # stride 5: the same turn over five frames is fine
+
+
+class SlidingRegistrar(OracleRegistrar):
+    """The oracle, except that the pair into frame ``slide_at`` slides 2.4 m along x (a scan matcher
+    in a corridor: 24 m/s at 10 Hz, under the 40 m/s limit)."""
+
+    def __init__(self, poses: np.ndarray, slide_at: int):
+        super().__init__(poses)
+        self.slide_at = slide_at
+
+    def register(self, source: int, target: int, initial_guess=None) -> RegistrationResult:
+        result = super().register(source, target, initial_guess)
+        if source == self.slide_at:
+            return RegistrationResult(make_transform(np.eye(3), [2.4, 0.0, 0.0]) @ result.transform)
+        return result
+
+
+def walk(steps_m: list[float]) -> np.ndarray:
+    return np.stack(
+        [make_transform(np.eye(3), [x, 0.0, 0.0]) for x in np.concatenate([[0.0], np.cumsum(steps_m)])]
+    )
+
+
+def test_a_jump_from_a_walk_to_a_sprint_in_one_pair_is_replaced_and_flagged():
+    poses = walk([0.15] * 12)
+    run = run_odometry(ToySequence(poses), Odometry(SlidingRegistrar(poses, slide_at=8)), range(len(poses)))
+    assert run.flagged_frames == [8]
+    assert "where the recent pairs moved 1.5 m/s" in run.per_frame_info[8]["reason"]
+    np.testing.assert_allclose(run.poses, poses, atol=1e-9)  # the walk's own velocity stands in
+
+
+def test_a_change_of_speed_that_the_next_pairs_agree_on_is_believed_after_three():
+    poses = walk([0.1] * 8 + [1.5] * 8)  # 1 m/s, then 15 m/s from frame 9 (beyond any real acceleration)
+    run = run_odometry(ToySequence(poses), Odometry(OracleRegistrar(poses)), range(len(poses)))
+    # The median of the last five estimates (as made, not as replaced) moves on after three.
+    assert run.flagged_frames == [9, 10, 11]
+    steps = np.diff(run.poses[:, 0, 3])
+    np.testing.assert_allclose(steps[11:], 1.5)
+
+
+def step(metres: float) -> np.ndarray:
+    return make_transform(np.eye(3), [metres, 0.0, 0.0])
+
+
+def test_motion_limits_bound_a_change_of_speed_by_acceleration_over_the_pair_plus_noise():
+    limits = MotionLimits(max_acceleration_m_s2=20.0, step_noise_m=0.75)
+    assert limits.violation(step(0.15), 0.1, recent_speed=1.5) is None
+    assert "recent pairs moved 1.5 m/s" in limits.violation(step(2.4), 0.1, recent_speed=1.5)
+    assert limits.violation(step(2.0), 0.1, recent_speed=20.8) is None  # a car braking at 8 m/s^2
+    assert limits.violation(step(0.0), 0.1, recent_speed=9.0) is None  # 0.9 m off: within the noise
+    assert limits.violation(step(2.4), 0.5, recent_speed=1.5) is None  # 2 Hz keyframes: 5.75 m allowed
+    assert limits.violation(step(2.4), 0.1) is None  # no history yet: speed and turn limits only

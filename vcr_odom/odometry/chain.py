@@ -31,6 +31,10 @@ from vcr_odom.odometry.limits import InitialGuess, MotionLimits
 from vcr_odom.odometry.polish import Polish, PolishResult, PriorAttempt
 from vcr_odom.registration.base import FAILED_STATUSES, BatchRegistrar, Registrar, RegistrationResult
 
+RECENT_PAIRS = 5
+"""Pairs whose median estimated speed a new pair's may not depart from implausibly
+(:class:`~vcr_odom.odometry.limits.MotionLimits`): the estimates as made, before any was replaced, so
+that a real change of speed that several pairs agree on is believed, never locked out."""
 RATE_HINT = "give the real times with --times FILE or a times.txt beside the scans"
 
 Consult = Literal["every-frame", "on-doubt"]
@@ -94,7 +98,8 @@ class Odometry:
 
     ``pose[t+1] = pose[t] @ T_t_(t+1)``. A motion beyond ``limits`` (or a registration that reports
     too few points) is replaced by the previous motion and flagged, so one bad pair never throws the
-    trajectory across the map silently; a polish that leaves the limits is undone the same way.
+    trajectory across the map silently; a polish that leaves the limits is undone the same way. The
+    limits include a speed change against the last :data:`RECENT_PAIRS` estimates.
     ``initial_guess``: where a registrar that needs one (ICP) starts; global ones get none.
     ``consult``: see :data:`CONSULT_CHOICES` (only with a polish).
     """
@@ -149,6 +154,8 @@ class Odometry:
         self._previous: PreparedFrame | None = None
         self._pose: Transform = np.eye(4)
         self._last_motion: Transform = np.eye(4)
+        self._speeds: deque[float] = deque(maxlen=RECENT_PAIRS)
+        self._estimated: Transform | None = None  # this pair's estimate before any replacement
         self._fits: deque[float] = deque(maxlen=self.doubt.window)
         self._doubted: deque[bool] = deque(maxlen=self.doubt.window)
         self.last_info = {}
@@ -202,6 +209,9 @@ class Odometry:
                     frame.polish, previous.polish, coarse, pose=self._pose, last_motion=self._last_motion
                 )
                 motion = self._kept(polished, coarse, frame, seconds, info)
+        estimated = motion if self._estimated is None else self._estimated
+        self._speeds.append(float(np.linalg.norm(estimated[:3, 3])) / max(seconds, 1e-3))
+        self._estimated = None
         # Re-orthonormalised at every step: a rotation error of the pose would otherwise grow from
         # chained float rounding, and kiss-icp (which takes poses from here) needs exact SE(3).
         self._pose = project_to_se3(self._pose @ motion)
@@ -245,7 +255,7 @@ class Odometry:
     def _doubt_about(self, attempt: PriorAttempt, seconds: float) -> str | None:
         if not self._fits:
             return "first pair"
-        implausible = self.limits.violation(attempt.motion, seconds)
+        implausible = self.limits.violation(attempt.motion, seconds, self._recent_speed())
         if implausible is not None:
             return f"prior implausible: {implausible}"
         median = statistics.median(self._fits)
@@ -266,7 +276,8 @@ class Odometry:
         """The global estimate, or the last motion where it is implausible or failed (flagged)."""
         coarse = np.asarray(result.transform, dtype=np.float64)
         info: dict[str, Any] = {"fitness": result.fitness, "inlier_rmse": result.inlier_rmse, **result.info}
-        problem = self.limits.violation(coarse, seconds)
+        self._estimated = coarse
+        problem = self.limits.violation(coarse, seconds, self._recent_speed())
         if problem is not None and not self._replace_implausible:
             info |= {"flagged": True, "reason": f"{problem} at the assumed frame rate; kept ({RATE_HINT})"}
             problem = None
@@ -290,7 +301,8 @@ class Odometry:
         assert self.polish is not None
         change_m, change_deg = motion_difference(coarse, polished.motion)
         info |= polished.info | {"polish_change_m": change_m, "polish_change_deg": change_deg}
-        diverged = self.limits.violation(polished.motion, seconds)
+        self._estimated = polished.motion
+        diverged = self.limits.violation(polished.motion, seconds, self._recent_speed())
         if diverged is None:
             return polished.motion
         if not self._replace_implausible:
@@ -314,6 +326,12 @@ class Odometry:
             prepared = [self.registrar.prepare(points) for points in clouds]
         for frame, registrar_frame in zip(frames, prepared, strict=True):
             frame.registrar = registrar_frame
+
+    def _recent_speed(self) -> float | None:
+        """The median speed the last :data:`RECENT_PAIRS` pairs were estimated at (before any was
+        replaced: a run of estimates that agree on a new speed is believed), or None over fewer than
+        three."""
+        return statistics.median(self._speeds) if len(self._speeds) >= 3 else None
 
     def _guess(self) -> Transform:
         if self.initial_guess is InitialGuess.CONSTANT_VELOCITY:
