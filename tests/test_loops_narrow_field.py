@@ -166,3 +166,53 @@ def test_a_better_fit_beyond_the_bound_is_a_second_answer_unless_turned(
     assert decision.scores["submaps"] and decision.scores["start"] == "odometry"
     assert (decision.check == "ambiguous") is ambiguous, decision.reason
     assert decision.accepted is not ambiguous
+
+
+@pytest.fixture(scope="module")
+def bent_walk() -> tuple[list[Node], LoopCandidate, np.ndarray]:
+    """Nodes (from ground truth) round both visits of a courtyard corner by a handheld Avia (frames 88
+    and 599, 0.2 m apart, turned 58 deg), the later visit's neighbours turned 6 deg about it (a walk's
+    odometry errs in heading at its turns), and the candidate with a prior 1.3 m / 3 deg off."""
+    walk = SynthSequence(
+        frames=600, seed=3, sensor=SensorConfig.model("avia"), route="loop", motion="handheld"
+    )
+    poses = walk.world_poses
+    path = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(poses[:, :3, 3], axis=0), axis=1))])
+    earlier, later = 88, 599
+    bend = make_transform(rotation_from_euler_zyx(math.radians(6.0), 0.0, 0.0), [0.0, 0.0, 0.0])
+    pivot = poses[later] @ bend @ invert(poses[later])
+    nodes: list[Node] = []
+    for k in range(len(poses)):
+        near_later = abs(path[k] - path[later]) <= WINDOW_M
+        if not (near_later or abs(path[k] - path[earlier]) <= WINDOW_M):
+            continue
+        if nodes and path[k] - nodes[-1].path_m < NODE_SPACING_M and k not in (earlier, later):
+            continue
+        pose = pivot @ poses[k] if near_later and k != later else poses[k]
+        nodes.append(Node(k, k, pose, float(path[k]), voxel_cloud(walk.frame(k))))
+    target = next(n for n, node in enumerate(nodes) if node.frame_index == earlier)
+    source = next(n for n, node in enumerate(nodes) if node.frame_index == later)
+    truth = invert(poses[earlier]) @ poses[later]
+    drift = make_transform(rotation_from_euler_zyx(math.radians(3.0), 0.0, 0.0), [1.0, -0.8, 0.2])
+    candidate = LoopCandidate(
+        source, target, drift @ truth, float(path[later] - path[earlier]), float(np.linalg.norm(truth[:3, 3]))
+    )
+    return nodes, candidate, truth
+
+
+def degrees_off(truth: np.ndarray, measured: np.ndarray) -> float:
+    return math.degrees(rotation_angle((invert(truth) @ measured)[:3, :3]))
+
+
+@pytest.mark.filterwarnings("ignore::vcr_odom.errors.DataWarning")
+def test_a_submap_loop_is_measured_with_the_source_scan_not_its_bent_submap(bent_walk, monkeypatch) -> None:
+    nodes, candidate, truth = bent_walk
+    network = VcrRegistrar(device="cpu")
+    decision = verify.LoopVerifier(network).verify(candidate, nodes)
+    assert decision.accepted and decision.scores["submaps"] and decision.scores["own_scan"]
+    assert degrees_off(truth, decision.measured) < 1.0
+    assert np.linalg.norm((invert(truth) @ decision.measured)[:3, 3]) < 0.2
+    monkeypatch.setattr(verify, "OWN_SCAN_FITNESS", 1.1)  # the submaps' fit alone carries the bend
+    submaps_only = verify.LoopVerifier(network).verify(candidate, nodes)
+    assert submaps_only.accepted and not submaps_only.scores["own_scan"]
+    assert degrees_off(truth, submaps_only.measured) > 3.0
