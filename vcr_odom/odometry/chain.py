@@ -34,7 +34,9 @@ from vcr_odom.registration.base import FAILED_STATUSES, BatchRegistrar, Registra
 RECENT_PAIRS = 5
 """Pairs whose median estimated speed a new pair's may not depart from implausibly
 (:class:`~vcr_odom.odometry.limits.MotionLimits`): the estimates as made, before any was replaced, so
-that a real change of speed that several pairs agree on is believed, never locked out."""
+that a real change of speed that several pairs agree on is believed, never locked out (a failed
+registration, or an estimate beyond the speed and turn limits, measures no speed: its pair counts as
+chained)."""
 RATE_HINT = "give the real times with --times FILE or a times.txt beside the scans"
 
 Consult = Literal["every-frame", "on-doubt"]
@@ -276,12 +278,13 @@ class Odometry:
         """The global estimate, or the last motion where it is implausible or failed (flagged)."""
         coarse = np.asarray(result.transform, dtype=np.float64)
         info: dict[str, Any] = {"fitness": result.fitness, "inlier_rmse": result.inlier_rmse, **result.info}
-        self._estimated = coarse
+        failed = result.info.get("status") in FAILED_STATUSES
+        self._note_estimate(coarse, seconds, failed)
         problem = self.limits.violation(coarse, seconds, self._recent_speed())
         if problem is not None and not self._replace_implausible:
             info |= {"flagged": True, "reason": f"{problem} at the assumed frame rate; kept ({RATE_HINT})"}
             problem = None
-        if problem is None and result.info.get("status") in FAILED_STATUSES:
+        if problem is None and failed:
             problem = str(result.info["status"])
         if problem is not None:
             info |= {"flagged": True, "reason": problem}
@@ -301,7 +304,7 @@ class Odometry:
         assert self.polish is not None
         change_m, change_deg = motion_difference(coarse, polished.motion)
         info |= polished.info | {"polish_change_m": change_m, "polish_change_deg": change_deg}
-        self._estimated = polished.motion
+        self._note_estimate(polished.motion, seconds)
         diverged = self.limits.violation(polished.motion, seconds, self._recent_speed())
         if diverged is None:
             return polished.motion
@@ -326,6 +329,13 @@ class Odometry:
             prepared = [self.registrar.prepare(points) for points in clouds]
         for frame, registrar_frame in zip(frames, prepared, strict=True):
             frame.registrar = registrar_frame
+
+    def _note_estimate(self, motion: Transform, seconds: float, failed: bool = False) -> None:
+        """Keep ``motion`` as this pair's estimate for :meth:`_recent_speed`, unless the registration
+        failed or the motion is beyond the speed and turn limits: that is no measurement of a speed
+        (the pair's chained motion counts instead)."""
+        measured = not failed and self.limits.violation(motion, seconds) is None
+        self._estimated = motion if measured else None
 
     def _recent_speed(self) -> float | None:
         """The median speed the last :data:`RECENT_PAIRS` pairs were estimated at (before any was
