@@ -216,3 +216,28 @@ def test_a_submap_loop_is_measured_with_the_source_scan_not_its_bent_submap(bent
     submaps_only = verify.LoopVerifier(network).verify(candidate, nodes)
     assert submaps_only.accepted and not submaps_only.scores["own_scan"]
     assert degrees_off(truth, submaps_only.measured) > 3.0
+
+
+@pytest.mark.filterwarnings("ignore::vcr_odom.errors.DataWarning")
+def test_a_submap_loop_whose_own_scan_slides_away_is_rejected(bent_walk, monkeypatch) -> None:
+    """The source's own scan overlaps the target submap but its polish slides beyond the drift bound
+    (it sees one wall: unseen walk 923): nothing checks the submaps' heading, so the loop is refused by
+    name instead of kept at the bent submap fit."""
+    nodes, candidate, _ = bent_walk
+    polish = verify._polish
+    own_cloud_size = len(nodes[candidate.source].cloud)
+
+    def sliding(source, target, start, scale):
+        fit = polish(source, target, start, scale)
+        if len(source.points) != own_cloud_size:  # the submaps' fits and probes
+            return fit
+        slid = np.asarray(start) @ make_transform(
+            rotation_from_euler_zyx(math.radians(72.0), 0, 0), [10, 0, 0]
+        )
+        return SimpleNamespace(fitness=0.46, inlier_rmse=fit.inlier_rmse, transformation=slid)
+
+    monkeypatch.setattr(verify, "_polish", sliding)
+    decision = verify.LoopVerifier(VcrRegistrar(device="cpu")).verify(candidate, nodes)
+    assert decision.scores["submaps"] and decision.scores["own_scan_fitness"] == 0.46
+    assert not decision.accepted and decision.check == "degenerate"
+    assert "own scan" in decision.reason and "10.0 m / 72 deg" in decision.reason

@@ -88,7 +88,10 @@ and that fit is the loop's where this share of the cloud overlaps (and it stays 
 The source's submap is placed by the odometry round it, and a walk's odometry errs in heading at
 turns: unseen courtyard walks 884 and 899 (Avia) had submap fits 3.5 and 5.2 deg off the truth, their
 own-scan fits 1.1 and 0.45 deg (overlap 0.73 and 0.55). On Avia crossings (807) the own scan overlaps
-0.37 or less and errs where it overlaps under 0.2 (0.3-13 deg)."""
+0.37 or less and errs where it overlaps under 0.2 (0.3-13 deg). An own cloud that overlaps this much
+but slides beyond the drift bound from the submap fit sees too little to check the submaps' heading,
+and the loop is rejected: on unseen walk 923 the source saw one wall, slid 10 m / 72 deg, and the submap
+fit it could not check was 5.8 deg off the truth."""
 CHECKS = ("points", "overlap", "fit_rmse", "drift_bound", "ambiguous", "degenerate", "graph")
 """What a candidate can fail, in the order tried (``LoopDecision.check``; ``graph``: accepted here, then
 dropped by the pose graph). ``drift_bound`` alone means the fit passed overlap and RMSE: a look-alike
@@ -182,14 +185,14 @@ class LoopVerifier:
         measured = np.asarray(fit.transformation, dtype=np.float64).copy()
         correction_m, correction_deg = _correction(candidate, measured)
         other = fits["odometry" if best == "network" else "network"]
-        apart = invert(np.asarray(other.transformation)) @ measured
+        apart_m, apart_deg = _apart(other.transformation, measured)
         decision.measured = measured
         decision.scores = {
             "fitness": round(float(fit.fitness), 4),
             "inlier_rmse_m": round(float(fit.inlier_rmse), 4),
             "start": best,
             "other_start_fitness": round(float(other.fitness), 4),
-            "starts_apart_m": round(float(np.linalg.norm(apart[:3, 3])), 3),
+            "starts_apart_m": round(apart_m, 3),
             "correction_m": round(correction_m, 3),
             "correction_deg": round(correction_deg, 3),
             "bound_m": round(self.drift.translation_bound(candidate.path_m, candidate.frames), 3),
@@ -197,7 +200,6 @@ class LoopVerifier:
             "network_input_kept_ground": self.ground_kept > kept_before,
             "submaps": submaps,
         }
-        apart_deg = math.degrees(float(rotation_angle(apart[:3, :3])))
         if (
             submaps
             and apart_deg >= CROSSING_TURN_DEG
@@ -210,9 +212,9 @@ class LoopVerifier:
             decision.check, decision.reason = self._probe(
                 decision, source_cloud, target_cloud, fit, scale, returns_m
             )
+        if not decision.check and submaps:
+            decision.check, decision.reason = self._on_own_scan(decision, source, target_cloud, scale)
         decision.accepted = not decision.check
-        if decision.accepted and submaps:
-            self._on_own_scan(decision, source, target_cloud, scale)
         if decision.accepted:  # the submaps' geometry, also where the source's own cloud measured the fit
             decision.information = _information(
                 source_cloud, target_cloud, decision.measured, fit.inlier_rmse, scale
@@ -221,24 +223,33 @@ class LoopVerifier:
 
     def _on_own_scan(
         self, decision: LoopDecision, source: Node, target: o3d.geometry.PointCloud, scale: float
-    ) -> None:
-        """The source node's own cloud polished on the target submap from the submap fit, where it
-        overlaps (:data:`OWN_SCAN_FITNESS`) and stays within the drift bound: the source's submap was
-        placed by the odometry round it and carries its heading error into the fit. Sets
-        ``decision.measured`` (and its correction) where it is kept."""
+    ) -> tuple[str, str]:
+        """The source node's own cloud polished on the target submap from the submap fit: the source's
+        submap was placed by the odometry round it and carries its heading error into the fit. Where
+        the own cloud overlaps (:data:`OWN_SCAN_FITNESS`), its fit is the loop's (``decision.measured``
+        and its correction are set) if it stays within the drift bound; if it slides beyond, the scan
+        cannot tell the submap fit's heading, and the check failed is returned as by :meth:`_judge`."""
         cloud = _o3d_cloud(source.cloud, source.cloud_voxel)
         own = _polish(cloud, target, decision.measured, scale)
-        kept = own.fitness >= OWN_SCAN_FITNESS and self._within_bound(decision.candidate, own.transformation)
+        overlaps = own.fitness >= OWN_SCAN_FITNESS
+        kept = overlaps and self._within_bound(decision.candidate, own.transformation)
         decision.scores["own_scan_fitness"] = round(float(own.fitness), 4)
         decision.scores["own_scan"] = kept
+        if overlaps and not kept:
+            slid_m, slid_deg = _apart(decision.measured, own.transformation)
+            return "degenerate", (
+                f"rejected: degenerate: the source's own scan (overlap {own.fitness:.2f}) slides "
+                f"{slid_m:.1f} m / {slid_deg:.0f} deg from its submap's fit, beyond the drift bound"
+            )
         if not kept:
-            return
+            return "", "accepted"
         decision.measured = np.asarray(own.transformation, dtype=np.float64).copy()
         correction_m, correction_deg = _correction(decision.candidate, decision.measured)
         decision.scores |= {
             "correction_m": round(correction_m, 3),
             "correction_deg": round(correction_deg, 3),
         }
+        return "", "accepted"
 
     def _judge(
         self, decision: LoopDecision, fit: Any, other: Any | None, apart_deg: float, scale: float
@@ -357,8 +368,13 @@ def _cloud_key(index: int, other: int, nodes: list[Node], submaps: bool) -> _Clo
 
 def _correction(candidate: LoopCandidate, measured: Any) -> tuple[float, float]:
     """How far (m, deg) a measured ``T_target_source`` moves the odometry's."""
-    correction = invert(candidate.prior) @ np.asarray(measured, dtype=np.float64)
-    return float(np.linalg.norm(correction[:3, 3])), math.degrees(float(rotation_angle(correction[:3, :3])))
+    return _apart(candidate.prior, measured)
+
+
+def _apart(first: Any, second: Any) -> tuple[float, float]:
+    """How far (m, deg) ``second`` is from ``first``."""
+    between = invert(np.asarray(first, dtype=np.float64)) @ np.asarray(second, dtype=np.float64)
+    return float(np.linalg.norm(between[:3, 3])), math.degrees(float(rotation_angle(between[:3, :3])))
 
 
 def _polish(
