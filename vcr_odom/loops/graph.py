@@ -14,6 +14,10 @@ decide what is kept: the final solve keeps the model's sigmas, as :data:`LOOP_SH
 them; scaled there too, a VLP-16 walk whose odometry's orientation was 17 deg off on a stretch where
 its positions were right ended 0.35 m off the truth against 0.28 m (unseen 877).
 
+Why the odometry's heading sigmas differ from edge to edge (:mod:`~vcr_odom.loops.heading_support`):
+a walk's heading error is made in a few stretches where the scans held it weakly, and a loop's
+correction belongs there, not spread evenly over the lap.
+
 Why up directions (:mod:`~vcr_odom.loops.ground`): loops cannot see a tilt that drifted between them,
 since a lobe driven in a tilted plane still meets itself at its ends. Each node's ground normal holds
 its roll and pitch to the world's up, loosely (:data:`ATTITUDE_SIGMA_DEG`: roads slope); its heading
@@ -34,6 +38,7 @@ from scipy.spatial.transform import Rotation, Slerp
 from vcr_odom.geometry import Transform, invert
 from vcr_odom.loops.cycles import OdometryScale, cycle_outliers, loop_cycles, odometry_scale
 from vcr_odom.loops.drift import DriftModel
+from vcr_odom.loops.heading_support import heading_sigma_factors
 from vcr_odom.loops.nodes import Node
 
 CAUCHY_SCALE = 3.0
@@ -122,6 +127,8 @@ class GraphResult:
     odometry: OdometryScale | None = None
     cycle_outliers: dict[int, tuple[int, int]] = field(default_factory=dict)
     """Loops dropped before the rounds (index -> misclosed cycles, cycles): :func:`cycle_outliers`."""
+    heading_factors: NDArray[np.float64] | None = None
+    """Each odometry edge's heading sigma factor (:func:`~vcr_odom.loops.heading_support.heading_sigma_factors`)."""
 
 
 def up_priors(nodes: Sequence[Node], sigma_deg: float = ATTITUDE_SIGMA_DEG) -> UpPriors:
@@ -187,7 +194,9 @@ def optimise(
     if not loops:
         return GraphResult(odometry.copy(), [], [])
     up = up_priors(nodes, attitude_sigma_deg)
-    sigmas = drift.chain_sigmas(odometry, frames)
+    sigma_m, sigma_rad = drift.chain_sigmas(odometry, frames)
+    heading_factors = heading_sigma_factors(nodes)
+    sigmas = (sigma_m, sigma_rad * heading_factors)
     cycles = loop_cycles(nodes, loops, sigmas)
     scale = odometry_scale(cycles)
     outliers = cycle_outliers(cycles, scale.scale)
@@ -211,7 +220,9 @@ def optimise(
     ]
     poses = _solve(odometry, sigmas, edges, final)
     n = len(loops)
-    return GraphResult(poses, weights[:n], kept[:n], up, kept[n:].count(False), scale, outliers)
+    return GraphResult(
+        poses, weights[:n], kept[:n], up, kept[n:].count(False), scale, outliers, heading_factors
+    )
 
 
 def _solve(

@@ -68,6 +68,13 @@ def voxel_cloud(
     return np.asarray(cloud.points, dtype=np.float32)
 
 
+def normal_cloud(points: NDArray[np.float32], voxel: float) -> o3d.geometry.PointCloud:
+    """A node cloud (or submap) with normals from 2.5 voxels around, as point-to-plane fits need."""
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points.astype(np.float64)))
+    cloud.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=2.5 * voxel, max_nn=20))
+    return cloud
+
+
 def node_cloud_voxel(points: Points) -> float:
     """:data:`CLOUD_VOXEL_M` for a street scan; for a scan of rooms the finer grid the polish takes
     there (:func:`~vcr_odom.odometry.polish_voxel.reach_voxel`): on 1 m voxels of a corridor, with

@@ -36,6 +36,7 @@ from vcr_odom.loops.candidates import (
 )
 from vcr_odom.loops.drift import DriftModel
 from vcr_odom.loops.graph import ATTITUDE_SIGMA_DEG, LoopEdge, correct_frames, optimise
+from vcr_odom.loops.heading_support import heading_summary
 from vcr_odom.loops.nodes import NODE_SPACING_DEG, NODE_SPACING_M, Node, NodeRecorder
 from vcr_odom.loops.verify import CHECKS, LoopDecision, LoopVerifier
 from vcr_odom.mapping import VoxelMap
@@ -249,6 +250,7 @@ def map_and_save(
                 | {
                     "ground_up": up,
                     "odometry_sigma_scale": closed.odometry_scale,
+                    "odometry_heading_sigmas": closed.heading_support,
                     "node_voxel_m": recorder.cloud_voxel,
                 },
                 "seconds": phase.seconds,
@@ -314,6 +316,9 @@ class ClosedLoops:
     ground_up: dict[str, Any]
     odometry_scale: dict[str, Any] | None = None
     """How the loops' cycles scaled the graph's odometry sigmas (None without loops)."""
+    heading_support: dict[str, Any] | None = None
+    """How far the graph raised its odometry edges' heading sigmas where the scans held the heading
+    weakly (None without loops)."""
 
 
 def close_loops(
@@ -370,7 +375,8 @@ def close_loops(
     phase.seconds["graph"] = time.perf_counter() - started
     up = {"used": False} if graph.up is None else graph.up.to_dict() | {"dropped": graph.up_dropped}
     scale = None if graph.odometry is None else graph.odometry.to_dict()
-    return ClosedLoops(decisions, poses, up, scale)
+    heading = None if graph.heading_factors is None else heading_summary(graph.heading_factors)
+    return ClosedLoops(decisions, poses, up, scale, heading)
 
 
 def _map_from_nodes(

@@ -36,6 +36,7 @@ from vcr_odom.loops.nodes import (
     NARROW_FIELD_COVERAGE,
     Node,
     azimuth_coverage,
+    normal_cloud,
     submap_cloud,
     submap_members,
 )
@@ -136,12 +137,6 @@ class LoopDecision:
         }
 
 
-def _o3d_cloud(points: NDArray[np.float32], voxel: float) -> o3d.geometry.PointCloud:
-    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points.astype(np.float64)))
-    cloud.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=2.5 * voxel, max_nn=20))
-    return cloud
-
-
 class LoopVerifier:
     """Registers and judges candidates; keeps each node's encoding and cloud for the next candidate."""
 
@@ -174,7 +169,7 @@ class LoopVerifier:
         turned = (self._network_points(source_points) @ turn[:3, :3].T).astype(np.float32)
         (source_frame,) = self.network.encode_inputs([turned])
         network = self.network.register(source_frame, target_frame)
-        source_cloud = _o3d_cloud(source_points, source.cloud_voxel)
+        source_cloud = normal_cloud(source_points, source.cloud_voxel)
         starts = {"network": network.transform @ turn, "odometry": candidate.prior}
         fits = {name: _polish(source_cloud, target_cloud, start, scale) for name, start in starts.items()}
         ranked = sorted(fits, key=lambda name: fits[name].fitness, reverse=True)
@@ -229,7 +224,7 @@ class LoopVerifier:
         the own cloud overlaps (:data:`OWN_SCAN_FITNESS`), its fit is the loop's (``decision.measured``
         and its correction are set) if it stays within the drift bound; if it slides beyond, the scan
         cannot tell the submap fit's heading, and the check failed is returned as by :meth:`_judge`."""
-        cloud = _o3d_cloud(source.cloud, source.cloud_voxel)
+        cloud = normal_cloud(source.cloud, source.cloud_voxel)
         own = _polish(cloud, target, decision.measured, scale)
         overlaps = own.fitness >= OWN_SCAN_FITNESS
         kept = overlaps and self._within_bound(decision.candidate, own.transformation)
@@ -329,7 +324,7 @@ class LoopVerifier:
         if key not in self._targets:
             cloud = self._cloud(key, nodes)
             (frame,) = self.network.encode_inputs([self._network_points(cloud)])
-            self._targets[key] = (frame, _o3d_cloud(cloud, nodes[key[0]].cloud_voxel))
+            self._targets[key] = (frame, normal_cloud(cloud, nodes[key[0]].cloud_voxel))
         return self._targets[key]
 
     def _cloud(self, key: _CloudKey, nodes: list[Node]) -> NDArray[np.float32]:
