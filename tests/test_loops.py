@@ -230,6 +230,7 @@ def test_map_without_revisits_keeps_the_odometry_and_writes_every_file(
     assert metrics["loops"]["accepted"] == 0 and metrics["memory"]["nodes"] == len(loops["nodes"])
     assert metrics["loops"]["ground_up"] == {"used": False}, "no loop: no graph, no up priors"
     assert metrics["loops"]["odometry_sigma_scale"] is None
+    assert metrics["loops"]["odometry_heading_sigmas"] is None, "no loop: the odometry edges left as they are"
     assert metrics["loops"]["node_voxel_m"] == 1.0  # a street: the nodes keep their 1 m grid
     assert metrics["odometry"]["ate_rpe"] == metrics["ate_rpe"]
 
