@@ -14,9 +14,11 @@ decide what is kept: the final solve keeps the model's sigmas, as :data:`LOOP_SH
 them; scaled there too, a VLP-16 walk whose odometry's orientation was 17 deg off on a stretch where
 its positions were right ended 0.35 m off the truth against 0.28 m (unseen 877).
 
-Why the odometry's heading sigmas differ from edge to edge (:mod:`~vcr_odom.loops.heading_support`):
-a walk's heading error is made in a few stretches where the scans held it weakly, and a loop's
-correction belongs there, not spread evenly over the lap.
+Why the final solve's odometry heading sigmas differ from edge to edge
+(:mod:`~vcr_odom.loops.heading_support`): a walk's heading error is made in a few stretches where the
+scans held it weakly, and a loop's correction belongs there, not spread evenly over the lap. Only
+the final solve: with them in the rounds too, a loop 2.3 m off along a corridor (indoor walk 902, its
+heading drifted 15 deg per 100 m on purpose) was kept, since loose edges let the graph bend to it.
 
 Why up directions (:mod:`~vcr_odom.loops.ground`): loops cannot see a tilt that drifted between them,
 since a lobe driven in a tilted plane still meets itself at its ends. Each node's ground normal holds
@@ -194,9 +196,7 @@ def optimise(
     if not loops:
         return GraphResult(odometry.copy(), [], [])
     up = up_priors(nodes, attitude_sigma_deg)
-    sigma_m, sigma_rad = drift.chain_sigmas(odometry, frames)
-    heading_factors = heading_sigma_factors(nodes)
-    sigmas = (sigma_m, sigma_rad * heading_factors)
+    sigmas = drift.chain_sigmas(odometry, frames)
     cycles = loop_cycles(nodes, loops, sigmas)
     scale = odometry_scale(cycles)
     outliers = cycle_outliers(cycles, scale.scale)
@@ -218,7 +218,8 @@ def optimise(
         w * (LOOP_SHARE if isinstance(edge, LoopEdge) else 1.0) if k else 0.0
         for w, k, edge in zip(weights, kept, edges, strict=True)
     ]
-    poses = _solve(odometry, sigmas, edges, final)
+    heading_factors = heading_sigma_factors(nodes)
+    poses = _solve(odometry, (sigmas[0], sigmas[1] * heading_factors), edges, final)
     n = len(loops)
     return GraphResult(
         poses, weights[:n], kept[:n], up, kept[n:].count(False), scale, outliers, heading_factors

@@ -9,7 +9,8 @@ certain, a loop spreads its correction evenly over the lap and leaves that bend 
 of two nodes round such a turn overlap little, or only on a wall that lets them turn: their
 point-to-plane information about rotation is what tells the graph where the heading was weakly held.
 Given each edge's true error as its sigma (a one-off test), 881's map would end at 0.21 m instead of
-0.71 m: the weights, not the loops, held it back.
+0.71 m: the weights, not the loops, held it back. The graph uses these factors in its final solve only
+(:func:`~vcr_odom.loops.graph.optimise`): which loops are kept stays the drift model's decision.
 """
 
 from __future__ import annotations
