@@ -40,6 +40,7 @@ from vcr_odom.loops.nodes import (
     submap_cloud,
     submap_members,
 )
+from vcr_odom.odometry.guided_kiss import motion_difference
 from vcr_odom.registration.vcr import VcrFrame, VcrRegistrar
 
 MIN_FITNESS = 0.5
@@ -180,7 +181,7 @@ class LoopVerifier:
         measured = np.asarray(fit.transformation, dtype=np.float64).copy()
         correction_m, correction_deg = _correction(candidate, measured)
         other = fits["odometry" if best == "network" else "network"]
-        apart_m, apart_deg = _apart(other.transformation, measured)
+        apart_m, apart_deg = motion_difference(np.asarray(other.transformation), measured)
         decision.measured = measured
         decision.scores = {
             "fitness": round(float(fit.fitness), 4),
@@ -227,17 +228,17 @@ class LoopVerifier:
         cloud = normal_cloud(source.cloud, source.cloud_voxel)
         own = _polish(cloud, target, decision.measured, scale)
         overlaps = own.fitness >= OWN_SCAN_FITNESS
-        kept = overlaps and self._within_bound(decision.candidate, own.transformation)
+        within = self._within_bound(decision.candidate, own.transformation)
         decision.scores["own_scan_fitness"] = round(float(own.fitness), 4)
-        decision.scores["own_scan"] = kept
-        if overlaps and not kept:
-            slid_m, slid_deg = _apart(decision.measured, own.transformation)
+        decision.scores["own_scan"] = overlaps and within
+        if not overlaps:
+            return "", "accepted"
+        if not within:
+            slid_m, slid_deg = motion_difference(decision.measured, np.asarray(own.transformation))
             return "degenerate", (
                 f"rejected: degenerate: the source's own scan (overlap {own.fitness:.2f}) slides "
                 f"{slid_m:.1f} m / {slid_deg:.0f} deg from its submap's fit, beyond the drift bound"
             )
-        if not kept:
-            return "", "accepted"
         decision.measured = np.asarray(own.transformation, dtype=np.float64).copy()
         correction_m, correction_deg = _correction(decision.candidate, decision.measured)
         decision.scores |= {
@@ -363,13 +364,7 @@ def _cloud_key(index: int, other: int, nodes: list[Node], submaps: bool) -> _Clo
 
 def _correction(candidate: LoopCandidate, measured: Any) -> tuple[float, float]:
     """How far (m, deg) a measured ``T_target_source`` moves the odometry's."""
-    return _apart(candidate.prior, measured)
-
-
-def _apart(first: Any, second: Any) -> tuple[float, float]:
-    """How far (m, deg) ``second`` is from ``first``."""
-    between = invert(np.asarray(first, dtype=np.float64)) @ np.asarray(second, dtype=np.float64)
-    return float(np.linalg.norm(between[:3, 3])), math.degrees(float(rotation_angle(between[:3, :3])))
+    return motion_difference(candidate.prior, np.asarray(measured, dtype=np.float64))
 
 
 def _polish(
