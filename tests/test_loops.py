@@ -257,6 +257,35 @@ def test_map_interrupted_after_the_odometry_keeps_the_odometry_marked_partial(
     assert not (folder / "map.ply").exists()
 
 
+def test_map_hands_the_frames_the_odometry_replaced_to_the_loop_phase(
+    small_synthetic_root: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Submaps are judged by where the odometry doubted itself (verify.MAX_SUBMAP_FLAGGED): map must
+    pass the run's flagged frames on, not an empty list."""
+    import vcr_odom.loops.pipeline as pipeline
+
+    run_odometry, close_loops = pipeline.run_odometry, pipeline.close_loops
+    handed: list[list[int]] = []
+
+    def one_flagged(*args: object, **kwargs: object):
+        run = run_odometry(*args, **kwargs)
+        run.per_frame_info[3] |= {"flagged": True, "reason": "a test's implausible motion"}
+        return run
+
+    def recorded(*args: object, **kwargs: object):
+        handed.append(list(args[5]))
+        return close_loops(*args, **kwargs)
+
+    monkeypatch.setattr(pipeline, "run_odometry", one_flagged)
+    monkeypatch.setattr(pipeline, "close_loops", recorded)
+    result = CliRunner().invoke(
+        cli,
+        ["map", "--data-root", str(small_synthetic_root), "--seq", "00", "--results-dir", str(tmp_path)],
+    )
+    assert result.exit_code == 0, result.output
+    assert handed == [[3]]
+
+
 def test_compare_puts_a_mapped_row_beside_its_odometry(small_synthetic_root: Path, tmp_path: Path) -> None:
     args = [
         "compare",

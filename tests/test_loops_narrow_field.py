@@ -241,3 +241,22 @@ def test_a_submap_loop_whose_own_scan_slides_away_is_rejected(bent_walk, monkeyp
     assert decision.scores["submaps"] and decision.scores["own_scan_fitness"] == 0.46
     assert not decision.accepted and decision.check == "degenerate"
     assert "own scan" in decision.reason and "10.0 m / 72 deg" in decision.reason
+
+
+@pytest.mark.filterwarnings("ignore::vcr_odom.errors.DataWarning")
+def test_a_crossing_whose_submap_the_odometry_doubted_is_not_registered(crossing) -> None:
+    """Three frames the odometry replaced inside the later pass's submap: that submap may be bent, and
+    the candidate is rejected before registration; two, or any number outside both submaps, change
+    nothing (the crossing closes as without them)."""
+    nodes, candidate, truth = crossing
+    network = VcrRegistrar(device="cpu")
+    later = nodes[candidate.source].frame_index
+    doubted = verify.LoopVerifier(network, flagged_frames=[later - 2, later, later + 3])
+    decision = doubted.verify(candidate, nodes)
+    assert not decision.accepted and decision.check == "doubted_submap"
+    assert "replaced 3 and 0 implausible motions" in decision.reason
+    between = range(560, 570)  # frames between the two passes: in neither submap
+    elsewhere = verify.LoopVerifier(network, flagged_frames=[later - 2, later + 3, *between])
+    kept = elsewhere.verify(candidate, nodes)
+    assert kept.accepted, kept.reason
+    assert np.linalg.norm((invert(truth) @ kept.measured)[:3, 3]) < 0.3

@@ -218,7 +218,7 @@ def map_and_save(
                 kept = None
             return MapOutcome(kept, sequence, run, run.poses, [], None, None, phase.seconds)
         nodes = recorder.finish()
-        closed = close_loops(options, network, nodes, run.poses, phase)
+        closed = close_loops(options, network, nodes, run.poses, phase, run.flagged_frames)
         decisions, poses, up = closed.decisions, closed.poses, closed.ground_up
         voxel_map = _map_from_nodes(sequence, nodes, poses, options.map_voxel, phase)
     except BaseException as error:
@@ -327,10 +327,12 @@ def close_loops(
     nodes: list[Node],
     odometry_poses: np.ndarray,
     phase: Phases | None = None,
+    flagged_frames: Sequence[int] = (),
 ) -> ClosedLoops:
     """Candidates, verification and the graph on nodes recorded along ``odometry_poses`` (every frame's,
     as the :class:`NodeRecorder` saw them): ``map``'s loop phase, and a benchmark's on a recorded or
-    drifted odometry."""
+    drifted odometry. ``flagged_frames``: where the odometry replaced implausible motions (submaps
+    spanning more than a few are not registered, :data:`~vcr_odom.loops.verify.MAX_SUBMAP_FLAGGED`)."""
     phase = phase or Phases(None)
     drift = DriftModel(
         translation_rate=settings.max_drift / 100, rotation_deg_per_m=settings.max_heading_drift / 100
@@ -341,7 +343,7 @@ def close_loops(
         candidates = find_candidates(
             nodes, drift, settings.revisit_radius, settings.min_loop_path, settings.attempt_spacing
         )
-        verifier = LoopVerifier(network, drift)
+        verifier = LoopVerifier(network, drift, flagged_frames)
         with phase("loop candidates", len(candidates)) as advance:
             for candidate in candidates:
                 decisions.append(verifier.verify(candidate, nodes))

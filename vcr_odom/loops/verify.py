@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -94,7 +95,23 @@ own-scan fits 1.1 and 0.45 deg (overlap 0.73 and 0.55). On Avia crossings (807) 
 but slides beyond the drift bound from the submap fit sees too little to check the submaps' heading,
 and the loop is rejected: on unseen walk 923 the source saw one wall, slid 10 m / 72 deg, and the submap
 fit it could not check was 5.8 deg off the truth."""
-CHECKS = ("points", "overlap", "fit_rmse", "drift_bound", "ambiguous", "degenerate", "graph")
+MAX_SUBMAP_FLAGGED = 2
+"""A submap is the odometry's picture of a place: where the odometry replaced more implausible motions
+than this among the frames a submap is made of (``flagged``), it slid or turned there and the submap is
+bent, and a bent submap fits a look-alike as well as the place. On tuning walk 871 (2600 frames, Avia)
+both false loops registered such submaps (5-10 flagged frames in each of their four), 28.3 and 3.5 m
+off the truth; every right submap loop on the courtyard walks and car drives (884, 894, 899, 807) had
+0 or 1 in each."""
+CHECKS = (
+    "points",
+    "doubted_submap",
+    "overlap",
+    "fit_rmse",
+    "drift_bound",
+    "ambiguous",
+    "degenerate",
+    "graph",
+)
 """What a candidate can fail, in the order tried (``LoopDecision.check``; ``graph``: accepted here, then
 dropped by the pose graph). ``drift_bound`` alone means the fit passed overlap and RMSE: a look-alike
 place, or odometry that drifts more than the bound allows (``map`` says how many, and the options that
@@ -141,9 +158,17 @@ class LoopDecision:
 class LoopVerifier:
     """Registers and judges candidates; keeps each node's encoding and cloud for the next candidate."""
 
-    def __init__(self, network: VcrRegistrar, drift: DriftModel | None = None) -> None:
+    def __init__(
+        self,
+        network: VcrRegistrar,
+        drift: DriftModel | None = None,
+        flagged_frames: Iterable[int] = (),
+    ) -> None:
+        """``flagged_frames``: the frames whose motion the odometry replaced as implausible
+        (``OdometryRun.flagged_frames``); none where the odometry does not say (a benchmark's drift)."""
         self.network = network
         self.drift = drift or DriftModel()
+        self.flagged_frames = np.sort(np.fromiter(flagged_frames, dtype=np.int64))
         self._targets: dict[_CloudKey, tuple[VcrFrame, o3d.geometry.PointCloud]] = {}
         self._submaps: dict[_CloudKey, NDArray[np.float32]] = {}
         self.ground_kept = 0
@@ -165,6 +190,16 @@ class LoopVerifier:
             decision.check = "points"
             decision.reason = "rejected: too few points within the submaps' radius"
             return decision
+        if submaps:
+            flagged = (self._flagged_within(source_key, nodes), self._flagged_within(target_key, nodes))
+            if max(flagged) > MAX_SUBMAP_FLAGGED:
+                decision.check = "doubted_submap"
+                decision.reason = (
+                    f"rejected: the odometry replaced {flagged[0]} and {flagged[1]} implausible motions "
+                    f"among the frames of the two submaps (more than {MAX_SUBMAP_FLAGGED}): a bent submap "
+                    "fits a look-alike place"
+                )
+                return decision
         target_frame, target_cloud = self._target(target_key, nodes)
         turn = make_transform(candidate.prior[:3, :3], np.zeros(3))
         turned = (self._network_points(source_points) @ turn[:3, :3].T).astype(np.float32)
@@ -336,6 +371,15 @@ class LoopVerifier:
         if key not in self._submaps:
             self._submaps[key] = submap_cloud(nodes, index, members)
         return self._submaps[key]
+
+    def _flagged_within(self, key: _CloudKey, nodes: list[Node]) -> int:
+        """Flagged frames from the first to the last node of the submap ``key``."""
+        members = key[1] or (key[0],)
+        first, last = nodes[min(members)].frame_index, nodes[max(members)].frame_index
+        return int(
+            np.searchsorted(self.flagged_frames, last, side="right")
+            - np.searchsorted(self.flagged_frames, first)
+        )
 
     @staticmethod
     def _needs_submaps(candidate: LoopCandidate, source: Node, target: Node) -> bool:
