@@ -17,6 +17,7 @@ from vcr_odom.loops.candidates import find_candidates
 from vcr_odom.loops.drift import DriftModel
 from vcr_odom.loops.graph import LoopEdge, correct_frames, optimise
 from vcr_odom.loops.nodes import Node
+from vcr_odom.loops.odometry_doubts import OdometryDoubts
 
 EXACT = np.diag([1e6] * 3 + [1e4] * 3)  # a loop measured to 1 mrad and 1 cm
 
@@ -231,6 +232,7 @@ def test_map_without_revisits_keeps_the_odometry_and_writes_every_file(
     assert metrics["loops"]["ground_up"] == {"used": False}, "no loop: no graph, no up priors"
     assert metrics["loops"]["odometry_sigma_scale"] is None
     assert metrics["loops"]["odometry_heading_sigmas"] is None, "no loop: the odometry edges left as they are"
+    assert metrics["loops"]["odometry_fit_sigmas"] is None
     assert metrics["loops"]["node_voxel_m"] == 1.0  # a street: the nodes keep their 1 m grid
     assert metrics["odometry"]["ate_rpe"] == metrics["ate_rpe"]
 
@@ -257,15 +259,15 @@ def test_map_interrupted_after_the_odometry_keeps_the_odometry_marked_partial(
     assert not (folder / "map.ply").exists()
 
 
-def test_map_hands_the_frames_the_odometry_replaced_to_the_loop_phase(
+def test_map_hands_what_the_odometry_doubted_to_the_loop_phase(
     small_synthetic_root: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """Submaps are judged by where the odometry doubted itself (verify.MAX_SUBMAP_FLAGGED): map must
-    pass the run's flagged frames on, not an empty list."""
+    """Submaps are judged by where the odometry doubted itself (verify.MAX_SUBMAP_FLAGGED) and the graph
+    weighs its edges by the frames' fits: map must pass both on, not empty records."""
     import vcr_odom.loops.pipeline as pipeline
 
     run_odometry, close_loops = pipeline.run_odometry, pipeline.close_loops
-    handed: list[list[int]] = []
+    handed: list[OdometryDoubts] = []
 
     def one_flagged(*args: object, **kwargs: object):
         run = run_odometry(*args, **kwargs)
@@ -273,7 +275,7 @@ def test_map_hands_the_frames_the_odometry_replaced_to_the_loop_phase(
         return run
 
     def recorded(*args: object, **kwargs: object):
-        handed.append(list(args[5]))
+        handed.append(args[5])
         return close_loops(*args, **kwargs)
 
     monkeypatch.setattr(pipeline, "run_odometry", one_flagged)
@@ -283,7 +285,9 @@ def test_map_hands_the_frames_the_odometry_replaced_to_the_loop_phase(
         ["map", "--data-root", str(small_synthetic_root), "--seq", "00", "--results-dir", str(tmp_path)],
     )
     assert result.exit_code == 0, result.output
-    assert handed == [[3]]
+    (doubts,) = handed
+    assert doubts.flagged_frames == (3,)
+    assert sorted(doubts.fits) == list(range(1, 8)), "each pair's prior fit, from the second frame on"
 
 
 def test_compare_puts_a_mapped_row_beside_its_odometry(small_synthetic_root: Path, tmp_path: Path) -> None:

@@ -115,3 +115,28 @@ def test_a_loop_corrects_the_edge_whose_heading_was_weakly_held(monkeypatch) -> 
     assert all(located.kept)
     assert error(located) < error(even) / 2
     assert located.heading_factors is weak
+
+
+def test_a_loop_corrects_the_edge_whose_frames_fitted_poorly() -> None:
+    """The odometry's own fit doubts (loops.odometry_doubts) loosen the final solve like the heading's."""
+    truth, nodes, loops = _lap_bent_at(edge=12)
+
+    def error(result) -> float:
+        return float(
+            np.sqrt(
+                np.mean(
+                    [
+                        np.sum((p[:3, 3] - t[:3, 3]) ** 2)
+                        for p, t in zip(result.node_poses, truth, strict=True)
+                    ]
+                )
+            )
+        )
+
+    even = optimise(nodes, loops)
+    doubted = np.ones(len(nodes) - 1)
+    doubted[12] = 10.0
+    located = optimise(nodes, loops, fit_factors=doubted)
+    assert all(located.kept) and located.kept == even.kept  # the rounds' verdicts stay the drift model's
+    assert error(located) < error(even) / 2
+    assert np.array_equal(located.fit_factors, doubted)

@@ -19,6 +19,8 @@ Why the final solve's odometry heading sigmas differ from edge to edge
 scans held it weakly, and a loop's correction belongs there, not spread evenly over the lap. Only
 the final solve: with them in the rounds too, a loop 2.3 m off along a corridor (indoor walk 902, its
 heading drifted 15 deg per 100 m on purpose) was kept, since loose edges let the graph bend to it.
+The same holds for the edges whose frames fitted their predecessors poorly
+(:mod:`~vcr_odom.loops.odometry_doubts`), whose factor scales both sigmas in the final solve.
 
 Why up directions (:mod:`~vcr_odom.loops.ground`): loops cannot see a tilt that drifted between them,
 since a lobe driven in a tilted plane still meets itself at its ends. Each node's ground normal holds
@@ -131,6 +133,8 @@ class GraphResult:
     """Loops dropped before the rounds (index -> misclosed cycles, cycles): :func:`cycle_outliers`."""
     heading_factors: NDArray[np.float64] | None = None
     """Each odometry edge's heading sigma factor (:func:`~vcr_odom.loops.heading_support.heading_sigma_factors`)."""
+    fit_factors: NDArray[np.float64] | None = None
+    """Each odometry edge's factor on both sigmas (:func:`~vcr_odom.loops.odometry_doubts.fit_sigma_factors`)."""
 
 
 def up_priors(nodes: Sequence[Node], sigma_deg: float = ATTITUDE_SIGMA_DEG) -> UpPriors:
@@ -187,9 +191,12 @@ def optimise(
     loops: Sequence[LoopEdge],
     drift: DriftModel | None = None,
     attitude_sigma_deg: float = ATTITUDE_SIGMA_DEG,
+    fit_factors: NDArray[np.float64] | None = None,
 ) -> GraphResult:
     """Node poses after optimisation; without loops, the odometry's, untouched.
-    ``attitude_sigma_deg``: the up directions' weight (0 leaves them out)."""
+    ``attitude_sigma_deg``: the up directions' weight (0 leaves them out); ``fit_factors``: per
+    odometry edge, a factor on both its sigmas in the final solve, where the odometry fitted poorly
+    (:func:`~vcr_odom.loops.odometry_doubts.fit_sigma_factors`; None: all 1)."""
     drift = drift or DriftModel()
     odometry = np.stack([node.pose for node in nodes])
     frames = np.diff([node.position for node in nodes]).astype(int).tolist()
@@ -219,10 +226,12 @@ def optimise(
         for w, k, edge in zip(weights, kept, edges, strict=True)
     ]
     heading_factors = heading_sigma_factors(nodes)
-    poses = _solve(odometry, (sigmas[0], sigmas[1] * heading_factors), edges, final)
+    fitted = np.ones(len(sigmas[0])) if fit_factors is None else np.asarray(fit_factors, dtype=np.float64)
+    final_sigmas = (sigmas[0] * fitted, sigmas[1] * heading_factors * fitted)
+    poses = _solve(odometry, final_sigmas, edges, final)
     n = len(loops)
     return GraphResult(
-        poses, weights[:n], kept[:n], up, kept[n:].count(False), scale, outliers, heading_factors
+        poses, weights[:n], kept[:n], up, kept[n:].count(False), scale, outliers, heading_factors, fitted
     )
 
 

@@ -73,8 +73,9 @@ def heading_sigma_factors(nodes: Sequence[Node]) -> NDArray[np.float64]:
     return np.clip(np.sqrt(typical / np.maximum(information, floor)), 1.0, MAX_SIGMA_FACTOR)
 
 
-def heading_summary(factors: NDArray[np.float64]) -> dict[str, float | int | None]:
-    """What ``metrics.json`` says of the factors: how many edges were raised, and how far."""
+def factor_summary(factors: NDArray[np.float64]) -> dict[str, float | int | None]:
+    """What ``metrics.json`` says of an edge's sigma factors (these, or the odometry's fit doubts):
+    how many edges were raised, and how far."""
     raised = factors[factors > 1.0]
     return {
         "edges": len(factors),

@@ -36,8 +36,9 @@ from vcr_odom.loops.candidates import (
 )
 from vcr_odom.loops.drift import DriftModel
 from vcr_odom.loops.graph import ATTITUDE_SIGMA_DEG, LoopEdge, correct_frames, optimise
-from vcr_odom.loops.heading_support import heading_summary
+from vcr_odom.loops.heading_support import factor_summary
 from vcr_odom.loops.nodes import NODE_SPACING_DEG, NODE_SPACING_M, Node, NodeRecorder
+from vcr_odom.loops.odometry_doubts import OdometryDoubts, fit_sigma_factors
 from vcr_odom.loops.verify import CHECKS, LoopDecision, LoopVerifier
 from vcr_odom.mapping import VoxelMap
 from vcr_odom.metrics import EvaluationReport, evaluate
@@ -218,7 +219,8 @@ def map_and_save(
                 kept = None
             return MapOutcome(kept, sequence, run, run.poses, [], None, None, phase.seconds)
         nodes = recorder.finish()
-        closed = close_loops(options, network, nodes, run.poses, phase, run.flagged_frames)
+        doubts = OdometryDoubts.of_run(run.frame_indices, run.per_frame_info)
+        closed = close_loops(options, network, nodes, run.poses, phase, doubts)
         decisions, poses, up = closed.decisions, closed.poses, closed.ground_up
         voxel_map = _map_from_nodes(sequence, nodes, poses, options.map_voxel, phase)
     except BaseException as error:
@@ -251,6 +253,7 @@ def map_and_save(
                     "ground_up": up,
                     "odometry_sigma_scale": closed.odometry_scale,
                     "odometry_heading_sigmas": closed.heading_support,
+                    "odometry_fit_sigmas": closed.fit_doubts,
                     "node_voxel_m": recorder.cloud_voxel,
                 },
                 "seconds": phase.seconds,
@@ -319,6 +322,9 @@ class ClosedLoops:
     heading_support: dict[str, Any] | None = None
     """How far the graph raised its odometry edges' heading sigmas where the scans held the heading
     weakly (None without loops)."""
+    fit_doubts: dict[str, Any] | None = None
+    """How far the graph raised its odometry edges' sigmas where the odometry's frames fitted poorly
+    (None without loops)."""
 
 
 def close_loops(
@@ -327,13 +333,14 @@ def close_loops(
     nodes: list[Node],
     odometry_poses: np.ndarray,
     phase: Phases | None = None,
-    flagged_frames: Sequence[int] = (),
+    doubts: OdometryDoubts | None = None,
 ) -> ClosedLoops:
     """Candidates, verification and the graph on nodes recorded along ``odometry_poses`` (every frame's,
     as the :class:`NodeRecorder` saw them): ``map``'s loop phase, and a benchmark's on a recorded or
-    drifted odometry. ``flagged_frames``: where the odometry replaced implausible motions (submaps
-    spanning more than a few are not registered, :data:`~vcr_odom.loops.verify.MAX_SUBMAP_FLAGGED`)."""
+    drifted odometry. ``doubts``: what the odometry said of its frames (:mod:`~vcr_odom.loops.odometry_doubts`;
+    none for a benchmark's drift)."""
     phase = phase or Phases(None)
+    doubts = doubts or OdometryDoubts()
     drift = DriftModel(
         translation_rate=settings.max_drift / 100, rotation_deg_per_m=settings.max_heading_drift / 100
     )
@@ -343,7 +350,7 @@ def close_loops(
         candidates = find_candidates(
             nodes, drift, settings.revisit_radius, settings.min_loop_path, settings.attempt_spacing
         )
-        verifier = LoopVerifier(network, drift, flagged_frames)
+        verifier = LoopVerifier(network, drift, doubts.flagged_frames)
         with phase("loop candidates", len(candidates)) as advance:
             for candidate in candidates:
                 decisions.append(verifier.verify(candidate, nodes))
@@ -354,7 +361,8 @@ def close_loops(
         LoopEdge(d.candidate.source, d.candidate.target, d.measured, d.information)
         for d in _accepted(decisions)
     ]
-    graph = optimise(nodes, edges, drift, ATTITUDE_SIGMA_DEG if settings.ground_up else 0.0)
+    attitude_deg = ATTITUDE_SIGMA_DEG if settings.ground_up else 0.0
+    graph = optimise(nodes, edges, drift, attitude_deg, fit_sigma_factors(nodes, doubts.fits))
     for k, (decision, kept, weight) in enumerate(
         zip(_accepted(decisions), graph.kept, graph.weights, strict=True)
     ):
@@ -377,8 +385,9 @@ def close_loops(
     phase.seconds["graph"] = time.perf_counter() - started
     up = {"used": False} if graph.up is None else graph.up.to_dict() | {"dropped": graph.up_dropped}
     scale = None if graph.odometry is None else graph.odometry.to_dict()
-    heading = None if graph.heading_factors is None else heading_summary(graph.heading_factors)
-    return ClosedLoops(decisions, poses, up, scale, heading)
+    heading = None if graph.heading_factors is None else factor_summary(graph.heading_factors)
+    fits = None if graph.fit_factors is None else factor_summary(graph.fit_factors)
+    return ClosedLoops(decisions, poses, up, scale, heading, fits)
 
 
 def _map_from_nodes(
