@@ -137,6 +137,13 @@ def map_command(ctx: click.Context, selection: FrameSelection, **options: object
             f"({settings.max_drift:g} % of the path, {settings.max_heading_drift:g} deg / 100 m): look-alike "
             "places, or an odometry that drifts more (then raise --max-drift / --max-heading-drift)."
         )
+    doubted = sum(d.check == "doubted_submap" for d in outcome.decisions)
+    if doubted:
+        console.print(
+            f"{doubted} candidate(s) not registered: the odometry replaced implausible motions among the "
+            f"frames of their submaps ({len(outcome.odometry.flagged_frames)} flagged frame(s) in the "
+            "run), so its picture of those places may be bent (loops.json: doubted_submap)."
+        )
     if outcome.report is not None and outcome.odometry_report is not None:
         console.print(_scores_table(outcome))
     else:

@@ -290,6 +290,39 @@ def test_map_hands_what_the_odometry_doubted_to_the_loop_phase(
     assert sorted(doubts.fits) == list(range(1, 8)), "each pair's prior fit, from the second frame on"
 
 
+def test_map_says_how_many_candidates_the_drift_bound_and_doubted_submaps_turned_away(
+    small_synthetic_root: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The console names the two rejections a user can act on or should know of: fits beyond the drift
+    bound (raise the options) and submaps across frames the odometry doubted (its picture is bent)."""
+    import vcr_odom.loops.pipeline as pipeline
+    from vcr_odom.loops.verify import LoopDecision
+
+    close_loops = pipeline.close_loops
+
+    def with_rejections(*args: object, **kwargs: object):
+        closed = close_loops(*args, **kwargs)
+        candidate = _candidate(np.eye(4), np.eye(4), 50.0)
+        closed.decisions += [
+            LoopDecision(candidate, 5, 0, check="drift_bound"),
+            LoopDecision(candidate, 6, 0, check="doubted_submap"),
+            LoopDecision(candidate, 7, 0, check="doubted_submap"),
+        ]
+        return closed
+
+    monkeypatch.setattr(pipeline, "close_loops", with_rejections)
+    result = CliRunner().invoke(
+        cli,
+        ["map", "--data-root", str(small_synthetic_root), "--seq", "00", "--results-dir", str(tmp_path)],
+    )
+    assert result.exit_code == 0, result.output
+    output = " ".join(result.output.split())
+    assert "3 loop candidate(s), 0 accepted" in output
+    assert "1 candidate(s) fit but asked the odometry for more than its drift bound" in output
+    assert "2 candidate(s) not registered: the odometry replaced implausible motions" in output
+    assert "doubted_submap" in output
+
+
 def test_compare_puts_a_mapped_row_beside_its_odometry(small_synthetic_root: Path, tmp_path: Path) -> None:
     args = [
         "compare",
