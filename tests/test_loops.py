@@ -209,13 +209,17 @@ def test_a_look_alike_a_block_away_is_rejected_as_beyond_the_drift(sample_nodes)
     assert decision.to_dict()["failed_check"] == decision.check  # loops.json names it
 
 
+def _map(data_root: Path, results: Path):
+    """``vcr-odom map`` on the small synthetic sequence 00, as a user runs it."""
+    return CliRunner().invoke(
+        cli, ["map", "--data-root", str(data_root), "--seq", "00", "--results-dir", str(results)]
+    )
+
+
 def test_map_without_revisits_keeps_the_odometry_and_writes_every_file(
     small_synthetic_root: Path, tmp_path: Path
 ) -> None:
-    result = CliRunner().invoke(
-        cli,
-        ["map", "--data-root", str(small_synthetic_root), "--seq", "00", "--results-dir", str(tmp_path)],
-    )
+    result = _map(small_synthetic_root, tmp_path)
     assert result.exit_code == 0, result.output
     (folder,) = [p for p in tmp_path.iterdir() if p.name.startswith("20")]
     for name in ("trajectory_kitti.txt", "trajectory_tum.txt", "odometry_kitti.txt", "loops.json", "map.ply"):
@@ -246,10 +250,7 @@ def test_map_interrupted_after_the_odometry_keeps_the_odometry_marked_partial(
         raise KeyboardInterrupt
 
     monkeypatch.setattr(pipeline, "_map_from_nodes", ctrl_c)
-    result = CliRunner().invoke(
-        cli,
-        ["map", "--data-root", str(small_synthetic_root), "--seq", "00", "--results-dir", str(tmp_path)],
-    )
+    result = _map(small_synthetic_root, tmp_path)
     assert result.exit_code == 130, result.output
     (folder,) = [p for p in tmp_path.iterdir() if p.name.startswith("20")]
     marker = json.loads((folder / "result.json").read_text())
@@ -280,10 +281,7 @@ def test_map_hands_what_the_odometry_doubted_to_the_loop_phase(
 
     monkeypatch.setattr(pipeline, "run_odometry", one_flagged)
     monkeypatch.setattr(pipeline, "close_loops", recorded)
-    result = CliRunner().invoke(
-        cli,
-        ["map", "--data-root", str(small_synthetic_root), "--seq", "00", "--results-dir", str(tmp_path)],
-    )
+    result = _map(small_synthetic_root, tmp_path)
     assert result.exit_code == 0, result.output
     (doubts,) = handed
     assert doubts.flagged_frames == (3,)
@@ -311,10 +309,7 @@ def test_map_says_how_many_candidates_the_drift_bound_and_doubted_submaps_turned
         return closed
 
     monkeypatch.setattr(pipeline, "close_loops", with_rejections)
-    result = CliRunner().invoke(
-        cli,
-        ["map", "--data-root", str(small_synthetic_root), "--seq", "00", "--results-dir", str(tmp_path)],
-    )
+    result = _map(small_synthetic_root, tmp_path)
     assert result.exit_code == 0, result.output
     output = " ".join(result.output.split())
     assert "3 loop candidate(s), 0 accepted" in output
@@ -354,10 +349,7 @@ def test_map_that_cannot_write_its_map_keeps_the_trajectory_marked_partial(
         raise OSError(28, "No space left on device")
 
     monkeypatch.setattr(VoxelMap, "save", disk_full)
-    result = CliRunner().invoke(
-        cli,
-        ["map", "--data-root", str(small_synthetic_root), "--seq", "00", "--results-dir", str(tmp_path)],
-    )
+    result = _map(small_synthetic_root, tmp_path)
     assert result.exit_code != 0
     (folder,) = [p for p in tmp_path.iterdir() if p.name.startswith("20")]
     marker = json.loads((folder / "result.json").read_text())
