@@ -423,3 +423,14 @@ def test_metrics_count_candidates_by_the_check_they_failed() -> None:
     assert summary["by_outcome"] == {"accepted": 2, "overlap": 1, "drift_bound": 2, "graph": 1}
     assert list(summary["by_outcome"]) == ["accepted", "overlap", "drift_bound", "graph"]
     assert summary["beyond_drift_bound"] == 2 and summary["accepted"] == 2
+
+
+def test_a_dropped_loop_is_told_what_it_disagreed_with() -> None:
+    """A lone loop the rounds drop disagreed with the odometry; there are no other loops to blame."""
+    from vcr_odom.loops.pipeline import dropped_reason
+
+    assert dropped_reason(None, 0.43, 1) == "dropped: disagrees with the odometry (graph weight 0.43)"
+    assert dropped_reason(None, 0.04, 3) == (
+        "dropped: disagrees with the odometry and the 2 other loop(s) (graph weight 0.04)"
+    )
+    assert dropped_reason((3, 4), 0.0, 5) == "dropped: 3 of its 4 cycles with the loops near it do not close"

@@ -370,13 +370,7 @@ def close_loops(
         if not kept:
             decision.accepted = False
             decision.check = "graph"
-            if k in graph.cycle_outliers:
-                misclosed, cycles = graph.cycle_outliers[k]
-                decision.reason = (
-                    f"dropped: {misclosed} of its {cycles} cycles with the loops near it do not close"
-                )
-            else:
-                decision.reason = f"dropped: disagrees with the other loops (graph weight {weight:.2f})"
+            decision.reason = dropped_reason(graph.cycle_outliers.get(k), weight, len(edges))
     before = np.stack([node.pose for node in nodes])
     if edges:
         poses = correct_frames(odometry_poses, [n.position for n in nodes], before, graph.node_poses)
@@ -388,6 +382,18 @@ def close_loops(
     heading = None if graph.heading_factors is None else factor_summary(graph.heading_factors)
     fits = None if graph.fit_factors is None else factor_summary(graph.fit_factors)
     return ClosedLoops(decisions, poses, up, scale, heading, fits)
+
+
+def dropped_reason(cycle_outlier: tuple[int, int] | None, weight: float, loops: int) -> str:
+    """Why the graph dropped a loop (``loops.json``): its cycles with the loops near it, or its weight
+    after the robust rounds, against the odometry's sigmas and the ``loops - 1`` other loops (a lone
+    loop can only disagree with the odometry)."""
+    if cycle_outlier is not None:
+        misclosed, cycles = cycle_outlier
+        return f"dropped: {misclosed} of its {cycles} cycles with the loops near it do not close"
+    others = loops - 1
+    against = "the odometry" if others == 0 else f"the odometry and the {others} other loop(s)"
+    return f"dropped: disagrees with {against} (graph weight {weight:.2f})"
 
 
 def _map_from_nodes(
