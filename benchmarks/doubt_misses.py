@@ -31,12 +31,12 @@ from rich.table import Table
 
 from vcr_odom.data import open_sequence
 from vcr_odom.data.selection import select_frames
+from vcr_odom.geometry import motion_difference
 from vcr_odom.metrics.drift import endpoint_drift
 from vcr_odom.metrics.evo_errors import ate_rpe
 from vcr_odom.metrics.pairs import relative_motions
 from vcr_odom.odometry import build_odometry, run_odometry
 from vcr_odom.odometry.chain import DoubtRule
-from vcr_odom.odometry.guided_kiss import motion_difference
 
 MISS_M, MISS_DEG = 0.2, 1.0
 

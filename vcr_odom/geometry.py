@@ -55,6 +55,12 @@ def rotation_angle(rotation: ArrayLike) -> NDArray[np.float64] | float:
     return float(angle) if np.ndim(angle) == 0 else angle
 
 
+def motion_difference(a: ArrayLike, b: ArrayLike) -> tuple[float, float]:
+    """Translation (m) and rotation (deg) between two motions (or poses): of ``inv(a) @ b``."""
+    delta = invert(np.asarray(a, dtype=np.float64)) @ np.asarray(b, dtype=np.float64)
+    return float(np.linalg.norm(delta[:3, 3])), float(np.degrees(rotation_angle(delta)))
+
+
 def rotation_from_euler_zyx(yaw: float, pitch: float, roll: float) -> NDArray[np.float64]:
     """``Rz(yaw) @ Ry(pitch) @ Rx(roll)``, radians: intrinsic Z-Y-X (scipy's ``"ZYX"``), the vehicle
     convention (turn, then nose up/down, then bank)."""

@@ -29,7 +29,7 @@ import open3d as o3d
 from numpy.typing import NDArray
 
 from vcr_odom.errors import DataWarning
-from vcr_odom.geometry import Transform, invert, make_transform, rotation_angle
+from vcr_odom.geometry import Transform, invert, make_transform, motion_difference, rotation_angle
 from vcr_odom.loops.candidates import LoopCandidate
 from vcr_odom.loops.drift import DriftModel
 from vcr_odom.loops.nodes import (
@@ -41,7 +41,6 @@ from vcr_odom.loops.nodes import (
     submap_cloud,
     submap_members,
 )
-from vcr_odom.odometry.guided_kiss import motion_difference
 from vcr_odom.registration.vcr import VcrFrame, VcrRegistrar
 
 MIN_FITNESS = 0.5

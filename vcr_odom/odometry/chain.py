@@ -25,8 +25,8 @@ import numpy as np
 
 from vcr_odom.data.base import Points
 from vcr_odom.errors import ConfigError
-from vcr_odom.geometry import Transform, project_to_se3
-from vcr_odom.odometry.guided_kiss import BASIN_DEG, BASIN_M, motion_difference
+from vcr_odom.geometry import Transform, motion_difference, project_to_se3
+from vcr_odom.odometry.guided_kiss import BASIN_DEG, BASIN_M
 from vcr_odom.odometry.limits import InitialGuess, MotionLimits
 from vcr_odom.odometry.polish import Polish, PolishResult, PriorAttempt
 from vcr_odom.registration.base import FAILED_STATUSES, BatchRegistrar, Registrar, RegistrationResult

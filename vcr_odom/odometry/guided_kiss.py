@@ -21,7 +21,7 @@ from kiss_icp.kiss_icp import KissICP, get_preprocessor, voxel_down_sample
 from scipy.spatial import cKDTree
 
 from vcr_odom.errors import ConfigError
-from vcr_odom.geometry import Transform, invert, project_to_se3, rotation_angle
+from vcr_odom.geometry import Transform, motion_difference, project_to_se3
 
 KISS_INTERNALS = ("preprocessor", "voxelize", "adaptive_threshold", "registration", "local_map")
 
@@ -205,12 +205,6 @@ def frame_to_frame_fit(source: np.ndarray, motion: Transform, previous: KissFram
 BASIN_M = 0.5
 BASIN_DEG = 2.0
 """Starts this close end in the same local result: running the local method from both only costs time."""
-
-
-def motion_difference(a: Transform, b: Transform) -> tuple[float, float]:
-    """Translation (m) and rotation (deg) between two motions."""
-    delta = invert(a) @ b
-    return float(np.linalg.norm(delta[:3, 3])), float(np.degrees(rotation_angle(delta)))
 
 
 def within_basin(a: Transform, b: Transform) -> bool:
