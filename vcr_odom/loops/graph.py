@@ -137,6 +137,18 @@ class GraphResult:
     """Each odometry edge's factor on both sigmas (:func:`~vcr_odom.loops.odometry_doubts.fit_sigma_factors`)."""
 
 
+def factor_summary(factors: NDArray[np.float64]) -> dict[str, float | int | None]:
+    """What ``metrics.json`` says of the odometry edges' sigma factors (:attr:`GraphResult.heading_factors`
+    or :attr:`GraphResult.fit_factors`): how many edges were raised, and how far."""
+    raised = factors[factors > 1.0]
+    return {
+        "edges": len(factors),
+        "raised": len(raised),
+        "median_raised": round(float(np.median(raised)), 3) if len(raised) else None,
+        "largest": round(float(factors.max()), 3) if len(factors) else None,
+    }
+
+
 def up_priors(nodes: Sequence[Node], sigma_deg: float = ATTITUDE_SIGMA_DEG) -> UpPriors:
     """One prior per node after the first whose ground was seen, where the odometry's tilt disagrees
     with the ground beyond :data:`TILT_AGREEMENT_DEG`; none when the start saw no ground."""

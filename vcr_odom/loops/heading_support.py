@@ -71,15 +71,3 @@ def heading_sigma_factors(nodes: Sequence[Node]) -> NDArray[np.float64]:
     floor = 1e-9
     typical = max(float(np.median(information)), floor)
     return np.clip(np.sqrt(typical / np.maximum(information, floor)), 1.0, MAX_SIGMA_FACTOR)
-
-
-def factor_summary(factors: NDArray[np.float64]) -> dict[str, float | int | None]:
-    """What ``metrics.json`` says of an edge's sigma factors (these, or the odometry's fit doubts):
-    how many edges were raised, and how far."""
-    raised = factors[factors > 1.0]
-    return {
-        "edges": len(factors),
-        "raised": len(raised),
-        "median_raised": round(float(np.median(raised)), 3) if len(raised) else None,
-        "largest": round(float(factors.max()), 3) if len(factors) else None,
-    }

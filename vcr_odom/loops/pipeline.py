@@ -35,8 +35,7 @@ from vcr_odom.loops.candidates import (
     find_candidates,
 )
 from vcr_odom.loops.drift import DriftModel
-from vcr_odom.loops.graph import ATTITUDE_SIGMA_DEG, LoopEdge, correct_frames, optimise
-from vcr_odom.loops.heading_support import factor_summary
+from vcr_odom.loops.graph import ATTITUDE_SIGMA_DEG, LoopEdge, correct_frames, factor_summary, optimise
 from vcr_odom.loops.nodes import NODE_SPACING_DEG, NODE_SPACING_M, Node, NodeRecorder
 from vcr_odom.loops.odometry_doubts import OdometryDoubts, fit_sigma_factors
 from vcr_odom.loops.verify import CHECKS, LoopDecision, LoopVerifier
@@ -362,7 +361,8 @@ def close_loops(
         for d in _accepted(decisions)
     ]
     attitude_deg = ATTITUDE_SIGMA_DEG if settings.ground_up else 0.0
-    graph = optimise(nodes, edges, drift, attitude_deg, fit_sigma_factors(nodes, doubts.fits))
+    fit_factors = fit_sigma_factors(nodes, doubts.fits) if edges else None  # no loop: no graph to weigh
+    graph = optimise(nodes, edges, drift, attitude_deg, fit_factors)
     for k, (decision, kept, weight) in enumerate(
         zip(_accepted(decisions), graph.kept, graph.weights, strict=True)
     ):
