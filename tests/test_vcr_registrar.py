@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -59,6 +61,32 @@ def test_an_n_point_cloud_is_used_as_it_is(weights: Path) -> None:
     cloud = np.random.default_rng(0).uniform(-20, 20, size=(SMALL.num_points, 4)).astype(np.float32)
     prepared = registrar.prepare(cloud)
     np.testing.assert_array_equal(prepared.points[0].numpy(), cloud[:, :3])
+
+
+def test_pre_processed_clouds_register_where_open3d_is_not_installed(weights: Path) -> None:
+    """A GPU image may hold torch alone: clouds pre-processed elsewhere (benchmarks/device_agreement.py)
+    must register there, and only pre-processing may need open3d."""
+    script = f"""
+import importlib.abc, sys
+class NoOpen3d(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path, target=None):
+        if name.split(".")[0] in ("open3d", "kiss_icp"):
+            raise ModuleNotFoundError(f"No module named {{name!r}}")
+sys.meta_path.insert(0, NoOpen3d())
+import numpy as np
+from vcr_odom.registration.vcr import VcrRegistrar
+registrar = VcrRegistrar({str(weights)!r}, "cpu")
+cloud = np.random.default_rng(0).uniform(-20, 20, size=({SMALL.num_points}, 3)).astype(np.float32)
+source, target = registrar.encode_inputs([cloud, cloud])
+print(registrar.register(source, target).transform.shape)
+try:
+    registrar.network_input(cloud[:-1])
+except ModuleNotFoundError as error:
+    print(error)
+"""
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.splitlines() == ["(4, 4)", "No module named 'open3d'"]
 
 
 def test_a_sparse_frame_runs_on_the_points_it_has_not_on_repeated_ones(weights: Path) -> None:

@@ -12,7 +12,6 @@ import warnings
 from typing import TYPE_CHECKING, Literal
 
 import numpy as np
-import open3d as o3d
 from numpy.typing import NDArray
 from pydantic import Field, model_validator
 
@@ -20,6 +19,8 @@ from vcr_odom.errors import ConfigError, DataWarning
 from vcr_odom.settings import Settings
 
 if TYPE_CHECKING:
+    import open3d as o3d
+
     from vcr_odom.model.config import VcrConfig
 
 DOWNSAMPLE_METHODS = ("fps", "random", "voxel")
@@ -105,6 +106,8 @@ def _as_points(points: NDArray) -> NDArray[np.float32]:
 
 def _to_cloud(points: NDArray) -> o3d.geometry.PointCloud:
     """xyz as an open3d cloud; reflectance (if any) rides in the colour channel so it survives sampling."""
+    import open3d as o3d  # here, not at the top: see remove_ground
+
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points[:, :3].astype(np.float64)))
     if points.shape[1] > 3:
         colours = np.zeros((len(points), 3))
@@ -180,6 +183,11 @@ def remove_ground(
     was found (then the points come back unchanged, with a ``DataWarning``). Deterministic for
     ``config.seed``: open3d's global RNG is seeded right before the search.
     """
+    # open3d is imported where it is used: the network's inference on clouds already pre-processed
+    # (training caches, benchmarks/device_agreement.py's pairs) then runs where it is not installed,
+    # such as a GPU image that holds torch alone.
+    import open3d as o3d
+
     config = config or PreprocessConfig()
     points = _as_points(points)
     xyz = points[:, :3].astype(np.float64)
