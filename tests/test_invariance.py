@@ -12,6 +12,7 @@ import torch
 from vcr_odom.geometry import invert, make_transform, rotation_from_euler_zyx
 from vcr_odom.model import VCRNet
 from vcr_odom.model.config import VcrConfig
+from vcr_odom.model.invariant_encoder import symmetric_eigen
 from vcr_odom.model.weights import default_weights_path, load_weights
 
 MOTIONS = [
@@ -235,3 +236,27 @@ def test_the_legacy_xyz_file_loads_as_it_was_and_fails_the_equivariance_property
 def test_shipped_default_is_the_invariant_model() -> None:
     _, config, _ = load_weights(default_weights_path("default"))
     assert config.encoder == "invariant"
+
+
+def _covariances(seed: int = 0) -> torch.Tensor:
+    points = torch.as_tensor(np.random.default_rng(seed).normal(size=(2, 64, 20, 3)))
+    centred = points - points.mean(dim=2, keepdim=True)
+    return centred.transpose(-1, -2) @ centred / 20
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+def test_a_failing_cuda_eigen_solver_falls_back_to_the_cpu(monkeypatch: pytest.MonkeyPatch) -> None:
+    solve = torch.linalg.eigh
+
+    def failing_on_cuda(matrices: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        if matrices.is_cuda:
+            raise RuntimeError("cusolver error: CUSOLVER_STATUS_INTERNAL_ERROR")
+        return solve(matrices)
+
+    covariances = _covariances()
+    expected_values, expected_vectors = solve(covariances)
+    monkeypatch.setattr(torch.linalg, "eigh", failing_on_cuda)
+    values, vectors = symmetric_eigen(covariances.cuda())
+    assert values.is_cuda and vectors.is_cuda
+    torch.testing.assert_close(values.cpu(), expected_values)
+    torch.testing.assert_close(vectors.abs().cpu(), expected_vectors.abs())

@@ -62,7 +62,7 @@ def local_shape(xyz: Tensor, index: Tensor) -> Tensor:
         centred = neighbours - neighbours.mean(dim=2, keepdim=True)
         covariance = centred.transpose(-1, -2) @ centred / index.shape[-1]
         work = torch.float32 if xyz.device.type == "mps" else torch.float64
-        values, vectors = torch.linalg.eigh(covariance.to(work))  # ascending
+        values, vectors = symmetric_eigen(covariance.to(work))  # ascending
         spread = values.clamp_min(0.0).sqrt().flip(-1)  # s1 >= s2 >= s3
         largest = spread[..., 0:1].clamp_min(1e-9)
         planarity = (spread[..., 1:2] - spread[..., 2:3]) / largest
@@ -70,6 +70,22 @@ def local_shape(xyz: Tensor, index: Tensor) -> Tensor:
         tilt = vectors[..., 2, :].abs()  # z component of each eigenvector, ascending eigenvalues
         shape = torch.cat([spread / EDGE_UNIT, tilt[..., 0:1] * planarity, tilt[..., 2:3] * linearity], -1)
     return shape.to(xyz.dtype)
+
+
+def symmetric_eigen(matrices: Tensor) -> tuple[Tensor, Tensor]:
+    """``torch.linalg.eigh`` on the matrices' device, or on the CPU where the device's solver fails.
+
+    cusolver's batched solver once failed on an H200 (``CUSOLVER_STATUS_INTERNAL_ERROR``, torch 2.11 +
+    CUDA 13, one frame's 1,024 covariances) that it solved in every later process on the same frames:
+    a crash of the whole run for what a CPU solves in milliseconds. The CPU's answer is the one the
+    weights were trained on, so the fallback changes no feature beyond float rounding."""
+    try:
+        return torch.linalg.eigh(matrices)
+    except RuntimeError:
+        if matrices.device.type == "cpu":
+            raise
+        values, vectors = torch.linalg.eigh(matrices.to("cpu", torch.float64))
+        return values.to(matrices.device, matrices.dtype), vectors.to(matrices.device, matrices.dtype)
 
 
 class GeometricEdgeConv(EdgeConv):
