@@ -64,19 +64,19 @@ def revisit_passages(gt: np.ndarray, node_positions: list[int], min_path: float)
     return passages
 
 
-def score(
-    outcome: MapOutcome, settings: MapSettings, odometry_seconds: float, map_seconds: float
+def score_loops(
+    gt: np.ndarray,
+    frame_indices: list[int],
+    loops: dict[str, Any],
+    odometry_poses: np.ndarray,
+    map_poses: np.ndarray,
+    min_loop_path: float,
 ) -> dict[str, Any]:
-    """The row of one sequence (see the module doc)."""
-    gt = ground_truth_for(outcome.sequence, outcome.odometry.frame_indices)
-    if gt is None:
-        raise SystemExit(f"{outcome.sequence.name}: no ground truth")
-    folder = outcome.folder
-    loops = json.loads((folder / "loops.json").read_text())
-    metrics = json.loads((folder / "metrics.json").read_text())
-    frame_position = {f: k for k, f in enumerate(outcome.odometry.frame_indices)}
+    """ATE, revisits closed and false closures of one map (see the module doc): ``loops`` as
+    ``loops.json`` holds it, ``gt`` every frame's true pose (frames ``frame_indices``)."""
+    frame_position = {f: k for k, f in enumerate(frame_indices)}
     nodes = [(frame_position[n["frame"]], n["path_m"]) for n in loops["nodes"]]
-    passages = revisit_passages(gt, [p for p, _ in nodes], settings.min_loop_path)
+    passages = revisit_passages(gt, [p for p, _ in nodes], min_loop_path)
     accepted = [c for c in loops["candidates"] if c["accepted"]]
     false, farthest = [], 0.0
     for loop in accepted:
@@ -106,19 +106,16 @@ def score(
         bool(len(source_paths)) and np.abs(source_paths - node_paths[j]).min() <= COVER_M
         for j in revisit_nodes
     )
-    odometry_ate = ate_rpe(outcome.odometry.poses, gt, alignment="se3").ate_trans_rmse_m
-    map_ate = ate_rpe(outcome.poses, gt, alignment="se3").ate_trans_rmse_m
-    odometry_origin = ate_rpe(outcome.odometry.poses, gt).ate_trans_rmse_m
-    map_origin = ate_rpe(outcome.poses, gt).ate_trans_rmse_m
+    odometry_ate = ate_rpe(odometry_poses, gt, alignment="se3").ate_trans_rmse_m
+    map_ate = ate_rpe(map_poses, gt, alignment="se3").ate_trans_rmse_m
     return {
-        "sequence": outcome.sequence.name,
-        "frames": len(outcome.poses),
+        "frames": len(map_poses),
         "path_m": round(float(node_paths[-1]), 1) if len(node_paths) else 0.0,
         "odometry_ate_m": odometry_ate,
         "map_ate_m": map_ate,
         "ate_ratio": map_ate / odometry_ate if odometry_ate > 0 else float("nan"),
-        "odometry_ate_origin_m": odometry_origin,
-        "map_ate_origin_m": map_origin,
+        "odometry_ate_origin_m": ate_rpe(odometry_poses, gt).ate_trans_rmse_m,
+        "map_ate_origin_m": ate_rpe(map_poses, gt).ate_trans_rmse_m,
         "revisit_passages": len(passages),
         "passages_closed": closed,
         "revisit_nodes": len(revisit_nodes),
@@ -128,9 +125,31 @@ def score(
         "false_closures": len(false),
         "false_closure_details": false,
         "farthest_loop_m": round(farthest, 2),
-        "max_change_m": float(
-            np.linalg.norm(outcome.poses[:, :3, 3] - outcome.odometry.poses[:, :3, 3], axis=1).max()
-        ),
+        "max_change_m": float(np.linalg.norm(map_poses[:, :3, 3] - odometry_poses[:, :3, 3], axis=1).max()),
+    }
+
+
+def score(
+    outcome: MapOutcome, settings: MapSettings, odometry_seconds: float, map_seconds: float
+) -> dict[str, Any]:
+    """The row of one sequence (see the module doc)."""
+    gt = ground_truth_for(outcome.sequence, outcome.odometry.frame_indices)
+    if gt is None:
+        raise SystemExit(f"{outcome.sequence.name}: no ground truth")
+    folder = outcome.folder
+    loops = json.loads((folder / "loops.json").read_text())
+    metrics = json.loads((folder / "metrics.json").read_text())
+    row = score_loops(
+        gt,
+        outcome.odometry.frame_indices,
+        loops,
+        outcome.odometry.poses,
+        outcome.poses,
+        settings.min_loop_path,
+    )
+    return {
+        "sequence": outcome.sequence.name,
+        **row,
         "odometry_seconds": odometry_seconds,
         "map_seconds": map_seconds,
         "time_ratio": map_seconds / odometry_seconds,

@@ -241,7 +241,7 @@ def map_and_save(
 
     def extras(unit: Path) -> None:
         _write_odometry(unit, run, sequence)
-        write_json(unit / "loops.json", _loops_json(decisions, nodes))
+        write_json(unit / "loops.json", loops_json(decisions, nodes))
         voxel_map.save(unit / "map.ply")
         write_json(
             unit / "metrics.json",
@@ -434,7 +434,8 @@ def _write_odometry(unit: Path, run: OdometryRun, sequence: LidarSequence) -> No
     write_tum_trajectory(unit / "odometry_tum.txt", poses, run.timestamps)
 
 
-def _loops_json(decisions: list[LoopDecision], nodes: list[Node]) -> dict[str, Any]:
+def loops_json(decisions: list[LoopDecision], nodes: list[Node]) -> dict[str, Any]:
+    """``loops.json``: every node (frame, path) and every candidate's decision."""
     return {
         "nodes": [
             {"node": k, "frame": n.frame_index, "path_m": round(n.path_m, 3)} for k, n in enumerate(nodes)

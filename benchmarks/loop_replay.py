@@ -1,0 +1,183 @@
+"""The loop phase of ``vcr-odom map`` again on an odometry recorded once: what a change to the
+candidates, the verification or the pose graph does, in a minute where the odometry takes many.
+Not a test: run
+
+    # once per sequence: the odometry as `map` runs it, with the nodes it records
+    .venv/bin/python benchmarks/loop_replay.py record --sequence WORK/sequences/881 --out rec/881.pkl \
+        [--stride K] [--method vcr]
+    # after each change under vcr_odom/loops: the loop phase on the recording, scored against the truth
+    .venv/bin/python benchmarks/loop_replay.py replay rec/881.pkl [rec/898.pkl ...] [--json out.json]
+
+A recording holds what ``map`` hands its loop phase: the nodes (odometry poses, coarse clouds), every
+frame's pose, what the odometry said of each frame (flagged frames, fits), and the loop options. The
+replay runs ``close_loops`` on it with the code of this checkout and scores it as
+``benchmarks/loop_closure.py`` does (the same function): SE(3)-aligned ATE of the odometry and the map,
+revisit passages closed, loops kept and the false ones (more than 1 m / 3 deg off the truth, each
+listed with its frames), and how far the map moved any frame. A change to the odometry or to how nodes
+are recorded needs a new recording.
+
+Recordings are Python pickles of this checkout's classes: a cache for the machine that made them,
+not a file to exchange (load only recordings you made; a recording from other code may not load).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import pickle
+import subprocess
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from loop_closure import score_loops  # beside this script
+from rich.console import Console
+from rich.table import Table
+
+from vcr_odom.data.selection import FrameSelection
+from vcr_odom.io import replacing
+from vcr_odom.loops.nodes import NodeRecorder
+from vcr_odom.loops.odometry_doubts import OdometryDoubts
+from vcr_odom.loops.pipeline import LoopOptions, MapSettings, close_loops, loop_network, loops_json
+from vcr_odom.odometry.loop import run_odometry
+from vcr_odom.odometry.outputs import ground_truth_for
+from vcr_odom.odometry.run import method_for
+
+FORMAT = 1
+"""Bumped when what a recording holds changes; a replay refuses other formats."""
+
+
+def _commit() -> str:
+    """The checkout's commit, so a recording says which odometry made it."""
+    done = subprocess.run(
+        ["git", "-C", str(Path(__file__).parent), "describe", "--always", "--dirty"],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    return done.stdout.strip() or "unknown"
+
+
+def record(args: argparse.Namespace) -> None:
+    folder: Path = args.sequence
+    selection = FrameSelection(data_root=folder.parent.parent, seq=folder.name, stride=args.stride)
+    settings = MapSettings(selection=selection, method=args.method, results_dir=Path("unused"))
+    sequence = selection.open()
+    indices = selection.indices(sequence)
+    odometry = method_for(settings)
+    recorder = NodeRecorder(settings.node_spacing, settings.node_angle)
+    run = run_odometry(
+        sequence, odometry, indices, on_frame=lambda i, pose, points: recorder(i, pose, points)
+    )
+    if run.interrupted or not run.frame_indices:
+        raise SystemExit(
+            f"{folder}: the odometry stopped ({run.interruption or 'interrupted'}); nothing recorded"
+        )
+    recording = {
+        "format": FORMAT,
+        "commit": _commit(),
+        "sequence": str(folder.resolve()),
+        "stride": args.stride,
+        "method": args.method,
+        "network": {
+            "weights": settings.weights,
+            "device": settings.device,
+            "vcr_points": settings.vcr_points,
+        },
+        "loop_options": {k: getattr(settings, k) for k in LoopOptions.model_fields},
+        "nodes": recorder.finish(),
+        "poses": run.poses,
+        "frame_indices": list(run.frame_indices),
+        "per_frame_info": run.per_frame_info,
+    }
+    with replacing(args.out) as temporary, temporary.open("wb") as handle:
+        pickle.dump(recording, handle)
+    print(f"{len(run.frame_indices)} frames, {len(recording['nodes'])} nodes -> {args.out}")
+
+
+def replay_one(path: Path) -> dict[str, Any]:
+    """The loop phase on one recording, scored against its sequence's ground truth."""
+    with path.open("rb") as handle:
+        recording = pickle.load(handle)  # the caller's own recording (see the module doc)
+    if not isinstance(recording, dict) or recording.get("format") != FORMAT:
+        raise SystemExit(f"{path}: not a recording of format {FORMAT}; record it again with this checkout")
+    folder = Path(recording["sequence"])
+    selection = FrameSelection(data_root=folder.parent.parent, seq=folder.name, stride=recording["stride"])
+    gt = ground_truth_for(selection.open(), recording["frame_indices"])
+    if gt is None:
+        raise SystemExit(f"{path}: {folder} has no ground truth to score against")
+    network = loop_network(
+        recording["network"]["weights"], recording["network"]["device"], recording["network"]["vcr_points"]
+    )
+    doubts = OdometryDoubts.of_run(recording["frame_indices"], recording["per_frame_info"])
+    options = LoopOptions(**recording["loop_options"])
+    closed = close_loops(options, network, recording["nodes"], recording["poses"], None, doubts)
+    loops = loops_json(closed.decisions, recording["nodes"])
+    row = score_loops(
+        gt, recording["frame_indices"], loops, recording["poses"], closed.poses, options.min_loop_path
+    )
+    return {"recording": str(path), "sequence": folder.name, "recorded_at": recording["commit"], **row}
+
+
+def replay(args: argparse.Namespace) -> None:
+    rows = [replay_one(path) for path in args.recordings]
+    table = Table(title=f"the loop phase at {_commit()} on recorded odometry")
+    for header in (
+        "sequence",
+        "odometry ATE [m]",
+        "map ATE [m]",
+        "ratio",
+        "passages closed",
+        "loops (false)",
+    ):
+        table.add_column(header)
+    table.add_column("false loops: frames, m / deg off")
+    table.add_column("max change [m]")
+    for row in rows:
+        false = "; ".join(
+            f"{a}->{b} {f['error_m']:.2f} / {f['error_deg']:.1f}"
+            for f in row["false_closure_details"]
+            for a, b in [f["frames"]]
+        )
+        table.add_row(
+            row["sequence"],
+            f"{row['odometry_ate_m']:.3f}",
+            f"{row['map_ate_m']:.3f}",
+            f"{row['ate_ratio']:.2f}",
+            f"{row['passages_closed']}/{row['revisit_passages']}",
+            f"{row['accepted']} ({row['false_closures']})",
+            false or "-",
+            f"{row['max_change_m']:.3f}",
+        )
+    Console().print(table)
+    if args.json:
+        with replacing(args.json) as temporary:
+            temporary.write_text(json.dumps(rows, indent=1, default=_plain))
+
+
+def _plain(value: Any) -> Any:
+    return value.item() if isinstance(value, np.generic) else str(value)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    commands = parser.add_subparsers(dest="command", required=True)
+    made = commands.add_parser("record", help="run map's odometry once and keep what its loop phase gets")
+    made.add_argument("--sequence", type=Path, required=True, help="sequences/<id> folder")
+    made.add_argument("--out", type=Path, required=True, help="the recording to write (.pkl)")
+    made.add_argument("--stride", type=int, default=1)
+    made.add_argument("--method", default="vcr")
+    again = commands.add_parser("replay", help="the loop phase of this checkout on recordings")
+    again.add_argument("recordings", type=Path, nargs="+")
+    again.add_argument("--json", type=Path)
+    args = parser.parse_args()
+    if args.command == "record":
+        record(args)
+    else:
+        replay(args)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,59 @@
+"""benchmarks/loop_replay.py: the loop phase replayed on a recorded odometry gives what `map` gives."""
+
+from __future__ import annotations
+
+import json
+import pickle
+import subprocess
+import sys
+from pathlib import Path
+
+from click.testing import CliRunner
+
+from vcr_odom.cli.main import cli
+
+SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "loop_replay.py"
+
+
+def _replay(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, str(SCRIPT), *args], capture_output=True, text=True, timeout=600)
+
+
+def test_a_replay_scores_what_map_made_of_the_same_frames(small_synthetic_root: Path, tmp_path: Path) -> None:
+    recording, scores = tmp_path / "00.pkl", tmp_path / "replay.json"
+    recorded = _replay(
+        "record", "--sequence", str(small_synthetic_root / "sequences" / "00"), "--out", str(recording)
+    )
+    assert recorded.returncode == 0, recorded.stderr
+    replayed = _replay("replay", str(recording), "--json", str(scores))
+    assert replayed.returncode == 0, replayed.stderr
+    (row,) = json.loads(scores.read_text())
+
+    result = CliRunner().invoke(
+        cli,
+        [
+            "map",
+            "--data-root",
+            str(small_synthetic_root),
+            "--seq",
+            "00",
+            "--results-dir",
+            str(tmp_path / "map"),
+        ],
+    )
+    assert result.exit_code == 0, result.output
+    (folder,) = [p for p in (tmp_path / "map").iterdir() if p.name.startswith("20")]
+    metrics = json.loads((folder / "metrics.json").read_text())
+    loops = json.loads((folder / "loops.json").read_text())
+    assert row["frames"] == metrics["memory"]["frames"] == 8
+    assert row["candidates"] == len(loops["candidates"]) and row["accepted"] == metrics["loops"]["accepted"]
+    assert abs(row["map_ate_m"] - metrics["ate_rpe"]["ate_se3_trans_rmse_m"]) < 1e-9
+    assert abs(row["odometry_ate_m"] - metrics["odometry"]["ate_rpe"]["ate_se3_trans_rmse_m"]) < 1e-9
+
+
+def test_a_file_that_is_not_a_recording_is_refused_by_name(tmp_path: Path) -> None:
+    other = tmp_path / "other.pkl"
+    other.write_bytes(pickle.dumps({"format": 0}))
+    replayed = _replay("replay", str(other))
+    assert replayed.returncode != 0
+    assert f"{other}: not a recording of format 1" in replayed.stderr
