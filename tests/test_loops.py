@@ -209,6 +209,22 @@ def test_a_look_alike_a_block_away_is_rejected_as_beyond_the_drift(sample_nodes)
     assert decision.to_dict()["failed_check"] == decision.check  # loops.json names it
 
 
+def test_a_spinning_sensor_fit_overlapping_under_half_is_rejected(sample_nodes, monkeypatch) -> None:
+    """The overlap a narrow field gets away with (0.4: tests/test_loops_narrow_field.py) is not enough
+    for a spinning sensor, whose two visits see all round."""
+    from types import SimpleNamespace
+
+    from vcr_odom.loops import verify
+    from vcr_odom.registration.vcr import VcrRegistrar
+
+    nodes, truth = sample_nodes
+    candidate = _candidate(truth, np.eye(4), 150.0)
+    fit = SimpleNamespace(fitness=0.45, inlier_rmse=0.45, transformation=truth)
+    monkeypatch.setattr(verify, "_polish", lambda *args: fit)
+    decision = verify.LoopVerifier(VcrRegistrar(device="cpu")).verify(candidate, nodes)
+    assert decision.check == "overlap" and decision.reason == "rejected: overlap 0.45 < 0.5"
+
+
 def _map(data_root: Path, results: Path):
     """``vcr-odom map`` on the small synthetic sequence 00, as a user runs it."""
     return CliRunner().invoke(

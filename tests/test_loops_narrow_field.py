@@ -260,3 +260,19 @@ def test_a_crossing_whose_submap_the_odometry_doubted_is_not_registered(crossing
     kept = elsewhere.verify(candidate, nodes)
     assert kept.accepted, kept.reason
     assert np.linalg.norm((invert(truth) @ kept.measured)[:3, 3]) < 0.3
+
+
+@pytest.mark.filterwarnings("ignore::vcr_odom.errors.DataWarning")
+@pytest.mark.parametrize(("fitness", "accepted"), [(0.45, True), (0.35, False)])
+def test_a_narrow_field_fit_needs_less_overlap_than_a_spinning_one(
+    crossing, monkeypatch, fitness: float, accepted: bool
+) -> None:
+    """Two visits of a narrow field see the place from view cones that overlap in part: 0.4 is
+    enough there (a spinning sensor's fits need 0.5: tests/test_loops.py)."""
+    nodes, candidate, _ = crossing
+    fit = SimpleNamespace(fitness=fitness, inlier_rmse=0.45, transformation=candidate.prior)
+    monkeypatch.setattr(verify, "_polish", lambda *args: fit)
+    decision = verify.LoopVerifier(VcrRegistrar(device="cpu")).verify(candidate, nodes)
+    assert decision.accepted is accepted, decision.reason
+    if not accepted:
+        assert decision.check == "overlap" and decision.reason == "rejected: overlap 0.35 < 0.4"

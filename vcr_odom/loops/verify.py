@@ -44,13 +44,20 @@ from vcr_odom.loops.nodes import (
 from vcr_odom.registration.vcr import VcrFrame, VcrRegistrar
 
 MIN_FITNESS = 0.5
+MIN_FITNESS_NARROW = 0.4
 MAX_INLIER_RMSE_M = 0.6
 """Overlap and fit at the fine stage's 1 m correspondence distance on 1 m voxels (metres here and below
 scale with a finer node grid). Real KITTI frames 5-10 m apart: fitness 0.84-0.91, RMSE 0.43-0.47 m
 (1 m voxels quantise); the same frames aligned 30 m off along the street, or turned round: fitness
 0.29-0.39. Two 1 m voxelisations of the same surface are about 0.5-0.6 m apart however well aligned
 (Mid-360 passages measured to 1-4 cm fit at RMSE 0.55-0.60 m on tuning seed 541), so the RMSE only
-rejects what is worse than that; overlap, the drift bound and the two starts are what tell a wrong fit."""
+rejects what is worse than that; overlap, the drift bound and the two starts are what tell a wrong fit.
+
+A narrow field of view (either node under :data:`~vcr_odom.loops.nodes.NARROW_FIELD_COVERAGE`) needs
+:data:`MIN_FITNESS_NARROW`: two visits of one place see it from view cones that overlap in part, so a
+right fit overlaps less. On the Avia courtyard walks right fits were rejected at 0.47 and 0.40 (944,
+measured within 0.04 m), and at 0.4 944, 947 and the 2600-frame walk 871 closed 2-3 more loops, none
+false, every other walk and drive replayed unchanged (docs/benchmarks.md, "Replaying the loop phase")."""
 MIN_CLOUD_POINTS = 50
 """Fewer 1 m voxels than this in either node cloud: nothing to register (a blocked or empty scan)."""
 POLISH_STAGES = ((3.0, 30), (1.0, 30))
@@ -237,7 +244,9 @@ class LoopVerifier:
             and not self._within_bound(candidate, other.transformation)
         ):
             other = None  # another arm of a crossing, not a fit the odometry could have drifted to
-        decision.check, decision.reason = self._judge(decision, fit, other, apart_deg, scale)
+        decision.check, decision.reason = self._judge(
+            decision, fit, other, apart_deg, scale, required_overlap(source, target)
+        )
         if not decision.check:
             returns_m = (SUBMAP_PROBE_RETURN_M if submaps else PROBE_RETURN_M) * scale
             decision.check, decision.reason = self._probe(
@@ -283,13 +292,19 @@ class LoopVerifier:
         return "", "accepted"
 
     def _judge(
-        self, decision: LoopDecision, fit: Any, other: Any | None, apart_deg: float, scale: float
+        self,
+        decision: LoopDecision,
+        fit: Any,
+        other: Any | None,
+        apart_deg: float,
+        scale: float,
+        min_overlap: float = MIN_FITNESS,
     ) -> tuple[str, str]:
         """The check failed (empty if none) and the reason ``loops.json`` gives; ``apart_deg``: the
         turn between the two starts' fits."""
         scores = decision.scores
-        if fit.fitness < MIN_FITNESS:
-            return "overlap", f"rejected: overlap {fit.fitness:.2f} < {MIN_FITNESS}"
+        if fit.fitness < min_overlap:
+            return "overlap", f"rejected: overlap {fit.fitness:.2f} < {min_overlap}"
         if fit.inlier_rmse > MAX_INLIER_RMSE_M * scale:
             return (
                 "fit_rmse",
@@ -386,8 +401,7 @@ class LoopVerifier:
         """Narrow fields of view that meet at :data:`SUBMAP_TURN_DEG` or more see almost nothing of
         each other's scan (a 70 deg field crossing a street at 90 deg: no overlap at all)."""
         turned = math.degrees(float(rotation_angle(candidate.prior[:3, :3])))
-        narrow = min(azimuth_coverage(source.cloud), azimuth_coverage(target.cloud)) < NARROW_FIELD_COVERAGE
-        return narrow and turned >= SUBMAP_TURN_DEG
+        return _narrow_field(source, target) and turned >= SUBMAP_TURN_DEG
 
     def _within_bound(self, candidate: LoopCandidate, measured: Any) -> bool:
         metres, degrees = _correction(candidate, measured)
@@ -463,3 +477,14 @@ def _information(
     count = max(float(hessian[5, 5]), 1.0)  # the translation block's diagonal counts correspondences
     noise = max(float(rmse), 0.05)
     return np.asarray(hessian) * (EFFECTIVE_POINTS / count) / noise**2
+
+
+def required_overlap(source: Node, target: Node) -> float:
+    """The fitness a fit between these nodes needs: :data:`MIN_FITNESS_NARROW` for a narrow field."""
+    return MIN_FITNESS_NARROW if _narrow_field(source, target) else MIN_FITNESS
+
+
+def _narrow_field(source: Node, target: Node) -> bool:
+    """Either node's scan covers less than :data:`~vcr_odom.loops.nodes.NARROW_FIELD_COVERAGE` of the
+    azimuth: a solid-state field of view."""
+    return min(azimuth_coverage(source.cloud), azimuth_coverage(target.cloud)) < NARROW_FIELD_COVERAGE
