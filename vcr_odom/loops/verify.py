@@ -58,8 +58,8 @@ A narrow field of view (either node under :data:`~vcr_odom.loops.nodes.NARROW_FI
 right fit overlaps less. On the Avia courtyard walks right fits were rejected at 0.47 and 0.40 (944,
 measured within 0.04 m), and at 0.4 944, 947 and the 2600-frame walk 871 closed 2-3 more loops, none
 false, the old-town crossing of drive 563 closed, and 832 and 843 changed by a loop or two (843's lost
-one 1.03 m off); one more false fit (931, 12.5 m off) passed,
-which the pose graph drops (docs/benchmarks.md, "Replaying the loop phase")."""
+one 1.03 m off); one more false fit (931, 12.5 m off) passed, which the pose graph drops
+(docs/benchmarks.md, "Replaying the loop phase")."""
 MIN_CLOUD_POINTS = 50
 """Fewer 1 m voxels than this in either node cloud: nothing to register (a blocked or empty scan)."""
 POLISH_STAGES = ((3.0, 30), (1.0, 30))

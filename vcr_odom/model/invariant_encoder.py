@@ -77,8 +77,8 @@ def symmetric_eigen(matrices: Tensor) -> tuple[Tensor, Tensor]:
 
     cusolver's batched solver once failed on an H200 (``CUSOLVER_STATUS_INTERNAL_ERROR``, torch 2.11 +
     CUDA 13, one frame's 1,024 covariances) that it solved in every later process on the same frames:
-    a crash of the whole run for what a CPU solves in milliseconds. The CPU's answer is the one the
-    weights were trained on, so the fallback changes no feature beyond float rounding."""
+    a crash of the whole run for what a CPU solves in milliseconds. The shipped weights were trained on
+    a CPU's answers, so the fallback changes no feature beyond float rounding."""
     try:
         return torch.linalg.eigh(matrices)
     except RuntimeError:
