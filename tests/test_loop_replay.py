@@ -8,6 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 from click.testing import CliRunner
 
 from vcr_odom.cli.main import cli
@@ -57,3 +58,38 @@ def test_a_file_that_is_not_a_recording_is_refused_by_name(tmp_path: Path) -> No
     replayed = _replay("replay", str(other))
     assert replayed.returncode != 0
     assert f"{other}: not a recording of format 1" in replayed.stderr
+
+
+@pytest.mark.slow
+def test_a_replay_keeps_the_loops_map_closed_on_a_walk(tmp_path: Path) -> None:
+    """The courtyard walk 881 (Avia, handheld, 600 frames), where `map` closes loops after an odometry
+    that flags frames: the replay must be handed the same nodes and doubts to keep the same loops."""
+    from vcr_odom.synth import generate_sequence
+
+    generate_sequence(
+        tmp_path / "walk", seq="881", frames=600, seed=881, motion="handheld", route="loop", sensor="avia"
+    )
+    recording, scores = tmp_path / "881.pkl", tmp_path / "replay.json"
+    sequence = tmp_path / "walk" / "sequences" / "881"
+    assert _replay("record", "--sequence", str(sequence), "--out", str(recording)).returncode == 0
+    assert _replay("replay", str(recording), "--json", str(scores)).returncode == 0
+    (row,) = json.loads(scores.read_text())
+
+    args = [
+        "map",
+        "--data-root",
+        str(tmp_path / "walk"),
+        "--seq",
+        "881",
+        "--results-dir",
+        str(tmp_path / "map"),
+    ]
+    result = CliRunner().invoke(cli, args)
+    assert result.exit_code == 0, result.output
+    (folder,) = [p for p in (tmp_path / "map").iterdir() if p.name.startswith("20")]
+    loops = json.loads((folder / "loops.json").read_text())
+    metrics = json.loads((folder / "metrics.json").read_text())
+    assert metrics["loops"]["accepted"] >= 1, "the walk closes: nothing to compare otherwise"
+    assert row["accepted"] == metrics["loops"]["accepted"]
+    assert row["candidates"] == len(loops["candidates"])
+    assert abs(row["map_ate_m"] - metrics["ate_rpe"]["ate_se3_trans_rmse_m"]) < 1e-3
