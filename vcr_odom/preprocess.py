@@ -185,7 +185,7 @@ def remove_ground(
     """
     # open3d is imported where it is used: the network's inference on clouds already pre-processed
     # (training caches, benchmarks/device_agreement.py's pairs) then runs where it is not installed,
-    # such as a GPU image that holds torch alone.
+    # such as a GPU image without it.
     import open3d as o3d
 
     config = config or PreprocessConfig()
