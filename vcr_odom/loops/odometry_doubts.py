@@ -65,7 +65,7 @@ def fit_sigma_factors(nodes: Sequence[Node], fits: Mapping[int, float]) -> NDArr
     median fit or better, where no frame of the edge has a fit, and on every edge of a sensor that
     sees all round."""
     factors = np.ones(max(len(nodes) - 1, 0), dtype=np.float64)
-    if not fits or not _narrow_field(nodes):
+    if not fits or not _mostly_narrow(nodes):
         return factors
     frames = np.array(sorted(fits), dtype=np.int64)
     values = np.array([fits[int(frame)] for frame in frames], dtype=np.float64)
@@ -80,6 +80,6 @@ def fit_sigma_factors(nodes: Sequence[Node], fits: Mapping[int, float]) -> NDArr
     return factors
 
 
-def _narrow_field(nodes: Sequence[Node]) -> bool:
+def _mostly_narrow(nodes: Sequence[Node]) -> bool:
     coverage = [azimuth_coverage(node.cloud) for node in nodes if len(node.cloud)]
     return bool(coverage) and float(np.median(coverage)) < NARROW_FIELD_COVERAGE

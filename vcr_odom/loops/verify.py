@@ -191,7 +191,8 @@ class LoopVerifier:
             return decision
         kept_before = self.ground_kept
         scale = max(source.cloud_voxel / CLOUD_VOXEL_M, MIN_DISTANCE_SCALE)
-        submaps = self._needs_submaps(candidate, source, target)
+        narrow = _either_narrow(source, target)
+        submaps = self._needs_submaps(candidate, narrow)
         source_key = _cloud_key(candidate.source, candidate.target, nodes, submaps)
         target_key = _cloud_key(candidate.target, candidate.source, nodes, submaps)
         source_points = self._cloud(source_key, nodes)
@@ -246,9 +247,8 @@ class LoopVerifier:
             and not self._within_bound(candidate, other.transformation)
         ):
             other = None  # another arm of a crossing, not a fit the odometry could have drifted to
-        decision.check, decision.reason = self._judge(
-            decision, fit, other, apart_deg, scale, required_overlap(source, target)
-        )
+        min_overlap = MIN_FITNESS_NARROW if narrow else MIN_FITNESS
+        decision.check, decision.reason = self._judge(decision, fit, other, apart_deg, scale, min_overlap)
         if not decision.check:
             returns_m = (SUBMAP_PROBE_RETURN_M if submaps else PROBE_RETURN_M) * scale
             decision.check, decision.reason = self._probe(
@@ -399,11 +399,11 @@ class LoopVerifier:
         )
 
     @staticmethod
-    def _needs_submaps(candidate: LoopCandidate, source: Node, target: Node) -> bool:
+    def _needs_submaps(candidate: LoopCandidate, narrow: bool) -> bool:
         """Narrow fields of view that meet at :data:`SUBMAP_TURN_DEG` or more see almost nothing of
         each other's scan (a 70 deg field crossing a street at 90 deg: no overlap at all)."""
         turned = math.degrees(float(rotation_angle(candidate.prior[:3, :3])))
-        return _narrow_field(source, target) and turned >= SUBMAP_TURN_DEG
+        return narrow and turned >= SUBMAP_TURN_DEG
 
     def _within_bound(self, candidate: LoopCandidate, measured: Any) -> bool:
         metres, degrees = _correction(candidate, measured)
@@ -481,12 +481,7 @@ def _information(
     return np.asarray(hessian) * (EFFECTIVE_POINTS / count) / noise**2
 
 
-def required_overlap(source: Node, target: Node) -> float:
-    """The fitness a fit between these nodes needs: :data:`MIN_FITNESS_NARROW` for a narrow field."""
-    return MIN_FITNESS_NARROW if _narrow_field(source, target) else MIN_FITNESS
-
-
-def _narrow_field(source: Node, target: Node) -> bool:
+def _either_narrow(source: Node, target: Node) -> bool:
     """Either node's scan covers less than :data:`~vcr_odom.loops.nodes.NARROW_FIELD_COVERAGE` of the
     azimuth: a solid-state field of view."""
     return min(azimuth_coverage(source.cloud), azimuth_coverage(target.cloud)) < NARROW_FIELD_COVERAGE
