@@ -247,11 +247,13 @@ def test_why_the_network_ran_is_counted_by_kind_of_reason() -> None:
 
     reasons = ["first pair", "not needed", "poor fit 0.51 (median 0.63)", "poor fit 0.40 (median 0.70)"]
     reasons += ["far from the prior: 0.62 m, 3.1 deg", "far from the prior: 1.20 m, 0.4 deg", "not needed"]
-    run = OdometryRun("m", list(range(8)), np.zeros((8, 4, 4)), np.zeros(8), {}, 1.0)
+    reasons += ["most recent pairs in doubt (11 of 20)", "most recent pairs in doubt (13 of 20)"]
+    run = OdometryRun("m", list(range(10)), np.zeros((10, 4, 4)), np.zeros(10), {}, 1.0)
     run.per_frame_info = [{}] + [{"global": reason} for reason in reasons]
     assert global_consultations(run) == {
         "first pair": 1,
         "not needed": 2,
         "poor fit": 2,
         "far from the prior": 2,
+        "most recent pairs in doubt": 2,
     }

@@ -172,9 +172,10 @@ def global_consultations(run: OdometryRun) -> dict[str, int]:
 
 def reason_kind(reason: str) -> str:
     """``"poor fit 0.51 (median 0.63)"`` -> ``"poor fit"``; ``"far from the prior: 0.6 m, 3 deg"`` ->
-    ``"far from the prior"``; a reason without figures is its own kind."""
+    ``"far from the prior"``; ``"most recent pairs in doubt (11 of 20)"`` -> ``"most recent pairs in
+    doubt"``; a reason without figures is its own kind."""
     head = reason.split(":")[0]
-    return re.sub(r"\s+[-\d.].*$", "", head).strip() or reason
+    return re.sub(r"\s+\(?[-\d.].*$", "", head).strip() or reason
 
 
 def polish_starts(run: OdometryRun) -> dict[str, int]:
