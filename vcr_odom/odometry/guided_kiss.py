@@ -22,6 +22,11 @@ from scipy.spatial import cKDTree
 
 from vcr_odom.errors import ConfigError
 from vcr_odom.geometry import Transform, motion_difference, project_to_se3
+from vcr_odom.odometry.degeneracy import WEAK_AXIS_SHARE, hold_along, weak_axes
+
+NORMAL_RADIUS_VOXELS = 4.5
+"""Surface normals for the weak axes are estimated within this many map voxels: three cells of the
+registration's own grid (1.5 voxels), so a normal spans a few of the points it is fitted to."""
 
 KISS_INTERNALS = ("preprocessor", "voxelize", "adaptive_threshold", "registration", "local_map")
 
@@ -90,19 +95,25 @@ class KissAttempt:
     sigma: float
     prediction: Transform
     pose: Transform | None
+    weak_axes: np.ndarray
 
 
 class GuidedKissICP(KissICP):
-    """``KissICP`` whose frames may also start from a pose given by a global method.
+    """``KissICP`` whose frames may also start from a pose given by a global method, and whose results
+    keep their start's position along the directions the frame cannot measure
+    (:func:`~vcr_odom.odometry.degeneracy.weak_axes` under ``weak_share``; 0 turns that off).
 
-    Fed its own prediction as the guess it reproduces kiss-icp's poses exactly (a test holds it to that).
+    With ``weak_share=0`` and fed its own prediction as the guess, it reproduces kiss-icp's poses
+    exactly (a test holds it to that).
     """
 
-    def __init__(self, config: KISSConfig) -> None:
+    def __init__(self, config: KISSConfig, weak_share: float = WEAK_AXIS_SHARE) -> None:
         super().__init__(config)
         check_kiss_internals(self)
+        self.weak_share = weak_share
         self.last_sigma = float("nan")
         self.last_source_points = 0
+        self.last_weak_axes = 0
 
     def seed(self, frame: KissFrame, pose: Transform, last_delta: Transform) -> None:
         """Start (or restart) the local map with ``frame`` at ``pose``, without registering it against
@@ -118,8 +129,9 @@ class GuidedKissICP(KissICP):
         source, downsample = self._voxelized(frame, self.last_delta)
         sigma = float(self.adaptive_threshold.get_threshold())
         prediction = self.last_pose @ self.last_delta
-        pose = self._align(source, prediction, sigma) if align else None
-        return KissAttempt(frame, source, downsample, sigma, prediction, pose)
+        axes = weak_axes(source, NORMAL_RADIUS_VOXELS * self.config.mapping.voxel_size, self.weak_share)
+        pose = hold_along(self._align(source, prediction, sigma), prediction, axes) if align else None
+        return KissAttempt(frame, source, downsample, sigma, prediction, pose, axes)
 
     def finish(self, attempt: KissAttempt, guess: Transform | None = None) -> tuple[Transform, str]:
         """Commit the frame: the prediction's result, or the result from ``guess`` (the frame's pose by
@@ -137,13 +149,9 @@ class GuidedKissICP(KissICP):
         if guess is not None:
             guess = project_to_se3(guess)
             if new_pose is None:
-                new_pose, start, start_pose = (
-                    self._align(attempt.source, guess, attempt.sigma),
-                    "global",
-                    guess,
-                )
+                new_pose, start, start_pose = self._held_align(attempt, guess), "global", guess
             elif not within_basin(new_pose, guess):
-                from_guess = self._align(attempt.source, guess, attempt.sigma)
+                from_guess = self._held_align(attempt, guess)
                 if self._fits_better(attempt.source, from_guess, new_pose):
                     new_pose, start, start_pose = from_guess, "global", guess
         if new_pose is None:
@@ -154,6 +162,7 @@ class GuidedKissICP(KissICP):
         self.last_pose = new_pose
         self.last_sigma = attempt.sigma
         self.last_source_points = len(attempt.source)
+        self.last_weak_axes = len(attempt.weak_axes)
         return np.asarray(new_pose, dtype=np.float64), start
 
     def register_frame_with_guess(
@@ -168,6 +177,10 @@ class GuidedKissICP(KissICP):
             assert frame.source is not None and frame.downsample is not None
             return frame.source, frame.downsample
         return self.voxelize(self.preprocessor.preprocess(frame.raw, np.array([]), last_delta))
+
+    def _held_align(self, attempt: KissAttempt, guess: Transform) -> Transform:
+        """The registration from ``guess``, holding its position along the frame's weak axes."""
+        return hold_along(self._align(attempt.source, guess, attempt.sigma), guess, attempt.weak_axes)
 
     def _align(self, source: np.ndarray, guess: Transform, sigma: float) -> Transform:
         """kiss-icp's registration step, as its ``register_frame`` calls it."""

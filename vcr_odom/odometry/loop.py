@@ -71,6 +71,16 @@ class OdometryRun:
         ]
 
     @property
+    def weak_axis_frames(self) -> list[int]:
+        """Frames whose scan left a direction unmeasured (:func:`~vcr_odom.odometry.degeneracy.weak_axes`):
+        the polish kept its start's position along it."""
+        return [
+            i
+            for i, info in zip(self.frame_indices, self.per_frame_info, strict=False)
+            if info.get("weak_axes")
+        ]
+
+    @property
     def frames_per_second(self) -> float:
         processed = len(self.frame_indices)
         return processed / self.wall_seconds if self.wall_seconds > 0 else float("nan")

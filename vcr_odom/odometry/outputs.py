@@ -154,6 +154,7 @@ def run_summary(run: OdometryRun) -> dict[str, Any]:
             if info.get("flagged")
         },
         "single_plane_frames": run.single_plane_frames,
+        "weak_axis_frames": run.weak_axis_frames,
         "polish_starts": polish_starts(run),
         "polish_voxel_m": run.per_frame_info[0].get("polish_voxel_m") if run.per_frame_info else None,
         "global_registration": global_consultations(run),

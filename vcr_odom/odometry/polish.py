@@ -19,6 +19,7 @@ from kiss_icp.config import KISSConfig
 from vcr_odom.data.base import Points
 from vcr_odom.errors import ConfigError, DataWarning
 from vcr_odom.geometry import Transform, invert
+from vcr_odom.odometry.degeneracy import WEAK_AXIS_SHARE
 from vcr_odom.odometry.guided_kiss import (
     GuidedKissICP,
     KissAttempt,
@@ -188,7 +189,10 @@ class KissIcpPolish:
     ``keep_prediction``: kiss-icp's constant-velocity prediction stays a start and the global estimate
     is a second one (``polish_start``: ``prediction`` or ``global``); False: the global estimate
     replaces the prediction. ``adapt_voxel``: the first frame picks the map voxel from its density
-    (:func:`~vcr_odom.odometry.polish_voxel.density_voxel`); False keeps ``config``'s.
+    (:func:`~vcr_odom.odometry.polish_voxel.density_voxel`); False keeps ``config``'s. ``weak_share``:
+    a result keeps its start's position along the directions its frame cannot measure
+    (:func:`~vcr_odom.odometry.degeneracy.weak_axes`; 0 turns it off, and the polish fed its own
+    prediction is kiss-icp's).
     """
 
     name = "kiss-icp"
@@ -197,11 +201,16 @@ class KissIcpPolish:
     Nor does a second process gain on two cores: kiss-icp's registration already keeps both busy."""
 
     def __init__(
-        self, config: KISSConfig | None = None, keep_prediction: bool = True, adapt_voxel: bool = True
+        self,
+        config: KISSConfig | None = None,
+        keep_prediction: bool = True,
+        adapt_voxel: bool = True,
+        weak_share: float = WEAK_AXIS_SHARE,
     ) -> None:
         self.config = config or polish_kiss_config()
         self.keep_prediction = keep_prediction
-        self.kiss = GuidedKissICP(self.config)
+        self.weak_share = weak_share
+        self.kiss = GuidedKissICP(self.config, self.weak_share)
         self._preparer = KissFramePreparer(self.config)
         self._voxel_open = adapt_voxel
 
@@ -223,7 +232,7 @@ class KissIcpPolish:
         voxel = density_voxel(frame, self.config)
         if voxel != self.config.mapping.voxel_size:
             self.config = with_voxel(self.config, voxel)
-            self.kiss = GuidedKissICP(self.config)
+            self.kiss = GuidedKissICP(self.config, self.weak_share)
             self._preparer = KissFramePreparer(self.config)
 
     @property
@@ -233,7 +242,7 @@ class KissIcpPolish:
 
     def start(self, frame: KissFrame) -> None:
         """A new map, seeded with the first frame at the identity."""
-        self.kiss = GuidedKissICP(self.config)
+        self.kiss = GuidedKissICP(self.config, self.weak_share)
         self.kiss.seed(frame, np.eye(4), np.eye(4))
 
     def refine(
@@ -282,11 +291,13 @@ class KissIcpPolish:
             "kiss_source_points": self.kiss.last_source_points,
             "polish_start": start,
         }
+        if self.kiss.last_weak_axes:
+            info["weak_axes"] = self.kiss.last_weak_axes
         return PolishResult(invert(pose) @ new_pose, info)
 
     def restart(self, frame: KissFrame, pose: Transform, motion: Transform) -> None:
         """A diverged map would drag every later frame: start a new one at ``pose @ motion``."""
-        self.kiss = GuidedKissICP(self.config)
+        self.kiss = GuidedKissICP(self.config, self.weak_share)
         self.kiss.seed(frame, pose @ motion, motion)
 
 
