@@ -51,6 +51,7 @@ their outer products; the three add up to 1) is one the scan cannot measure tran
 Measured on a courtyard walk with a Livox Avia (docs/benchmarks.md, "Directions a scan cannot
 measure"): 0.001-0.006 on the footpath where kiss-icp slid, 0.04-0.23 where it held."""
 NORMAL_NEIGHBOURS = 20
+"""Neighbours a surface normal is fitted to (at most), and the fewest points worth measuring."""
 
 
 def normal_shares(points: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
