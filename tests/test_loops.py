@@ -109,6 +109,22 @@ def test_the_graph_drops_a_loop_that_disagrees_with_the_others() -> None:
     assert error < np.linalg.norm(odometry[-1][:3, 3] - truth[-1][:3, 3]) / 5
 
 
+def test_a_walks_lone_loop_is_kept_where_its_two_starts_agreed() -> None:
+    """A 60 m lap whose heading drifted 26 deg (1.3 deg a node, as the handheld Avia walks drift):
+    the odometry's sigmas call the one right loop an outlier; corroborated by its two starts and
+    with no other loop to weigh it against, it is kept and closes the lap."""
+    truth, odometry = _circle(20, 9.0, heading_drift_deg_per_node=1.3)
+    nodes = _nodes(odometry)
+    measured = invert(truth[1]) @ truth[21]
+    error_before = np.linalg.norm(odometry[21][:3, 3] - truth[21][:3, 3])
+    doubted = optimise(nodes, [LoopEdge(21, 1, measured, EXACT)])
+    assert doubted.kept == [False] and np.array_equal(doubted.node_poses, np.stack(odometry))
+    kept = optimise(nodes, [LoopEdge(21, 1, measured, EXACT, corroborated=True)])
+    assert kept.kept == [True] and kept.weights == [1.0]
+    assert error_before > 3.0
+    assert np.linalg.norm(kept.node_poses[21][:3, 3] - truth[21][:3, 3]) < 0.1
+
+
 def test_frames_between_nodes_follow_their_nodes_smoothly() -> None:
     frames = np.stack([make_transform(np.eye(3), [float(k), 0, 0]) for k in range(11)])
     before = frames[[0, 10]]
@@ -193,6 +209,24 @@ def test_a_revisit_is_registered_without_the_odometry_and_accepted(sample_nodes)
     assert np.linalg.norm(error[:3, 3]) < 0.2
     assert math.degrees(rotation_angle(error[:3, :3])) < 0.5
     assert decision.information is not None and np.all(np.linalg.eigvalsh(decision.information) > 0)
+    assert decision.corroborated, (
+        decision.scores
+    )  # the network's start, 1.8 m from the odometry's, ends in its fit
+    assert decision.to_dict()["corroborated"] is True
+
+
+def test_starts_that_begin_together_corroborate_nothing(sample_nodes) -> None:
+    """An odometry 0.4 m off: the network's start lands within a metre of it, so their ending in one
+    fit says nothing a single start would not."""
+    from vcr_odom.loops.verify import CORROBORATING_STARTS_M, LoopVerifier
+    from vcr_odom.registration.vcr import VcrRegistrar
+
+    nodes, truth = sample_nodes
+    close = make_transform(rotation_from_euler_zyx(math.radians(2), 0, 0), [0.3, -0.25, 0.0])
+    decision = LoopVerifier(VcrRegistrar(device="cpu")).verify(_candidate(truth, close, 150.0), nodes)
+    assert decision.accepted, decision.reason
+    assert decision.scores["starts_before_m"] < CORROBORATING_STARTS_M
+    assert not decision.corroborated
 
 
 def test_a_look_alike_a_block_away_is_rejected_as_beyond_the_drift(sample_nodes) -> None:

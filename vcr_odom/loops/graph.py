@@ -14,6 +14,18 @@ decide what is kept: the final solve keeps the model's sigmas, as :data:`LOOP_SH
 them; scaled there too, a VLP-16 walk whose odometry's orientation was 17 deg off on a stretch where
 its positions were right ended 0.35 m off the truth against 0.28 m (unseen 877).
 
+Why a corroborated loop keeps its full weight where the loops close too few cycles to measure the
+odometry's noise: a handheld walk's heading drifts 15-27 deg a lap round a ~60 m courtyard, inside the
+drift bound, and the graph's sigmas (a car's) made its one or two right loops outliers; the rounds
+dropped them (weights 0.09-0.47) as they dropped the false fits (0.00-0.47), and no weight told them
+apart. A loop whose two starts, a metre or more apart, polished into the one fit on a scene that
+measures every direction (:attr:`~vcr_odom.loops.verify.LoopDecision.corroborated`) was right on every
+courtyard walk and indoor walk replayed. Not on every drive: an HDL-64E figure eight (825) has a
+corroborated fit 1.25 m off, and only the cycles of its 25 neighbours tell; so where cycles are many,
+they scale the sigmas and every loop is weighed. Scaling the odometry's sigmas by the drift the
+corroborated loops measure, instead of trusting them, let false fits along indoor corridors through
+the rounds (docs/benchmarks.md, "Loops that measure the drift").
+
 Why the final solve's odometry heading sigmas differ from edge to edge
 (:mod:`~vcr_odom.loops.heading_support`): a walk's heading error is made in a few stretches where the
 scans held it weakly, and a loop's correction belongs there, not spread evenly over the lap. Only
@@ -40,7 +52,7 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation, Slerp
 
 from vcr_odom.geometry import Transform, invert
-from vcr_odom.loops.cycles import OdometryScale, cycle_outliers, loop_cycles, odometry_scale
+from vcr_odom.loops.cycles import MIN_CYCLES, OdometryScale, cycle_outliers, loop_cycles, odometry_scale
 from vcr_odom.loops.drift import DriftModel
 from vcr_odom.loops.heading_support import heading_sigma_factors
 from vcr_odom.loops.nodes import Node
@@ -91,7 +103,11 @@ class GraphEdge:
 
 @dataclass(frozen=True)
 class LoopEdge(GraphEdge):
-    """A loop between nodes ``source`` and ``target``: ``transform`` is ``T_target_source``."""
+    """A loop between nodes ``source`` and ``target``: ``transform`` is ``T_target_source``;
+    ``corroborated`` (:attr:`~vcr_odom.loops.verify.LoopDecision.corroborated`): kept at full weight
+    by the rounds where the loops close too few cycles to weigh it (:func:`_trusted`)."""
+
+    corroborated: bool = False
 
 
 @dataclass(frozen=True)
@@ -220,13 +236,14 @@ def optimise(
     scale = odometry_scale(cycles)
     outliers = cycle_outliers(cycles, scale.scale)
     edges: list[GraphEdge] = [*loops, *up.edges]
+    trusted = _trusted(edges, len(cycles))
     weights = [0.0 if k in outliers else 1.0 for k in range(len(edges))]
     poses = odometry
     for _ in range(ROUNDS):
         poses = _solve(odometry, sigmas, edges, weights, scale.scale)
         chi2 = [_residual_chi2(poses, edge) for edge in edges]
         new = [
-            0.0 if k in outliers else 1.0 / (1.0 + c / (edge.dof * CAUCHY_SCALE**2))
+            0.0 if k in outliers else 1.0 if trusted[k] else 1.0 / (1.0 + c / (edge.dof * CAUCHY_SCALE**2))
             for k, (c, edge) in enumerate(zip(chi2, edges, strict=True))
         ]
         if np.allclose(new, weights, atol=1e-3):
@@ -245,6 +262,15 @@ def optimise(
     return GraphResult(
         poses, weights[:n], kept[:n], up, kept[n:].count(False), scale, outliers, heading_factors, fitted
     )
+
+
+def _trusted(edges: Sequence[GraphEdge], cycles: int) -> list[bool]:
+    """Per edge, whether the rounds leave its weight at 1: a corroborated loop where the loops close
+    too few cycles (:data:`~vcr_odom.loops.cycles.MIN_CYCLES`) to measure the odometry's noise, so that
+    only the drift model's sigmas, a car's, would judge it. Where cycles are many, they scale the
+    sigmas and every loop is weighed."""
+    few = cycles < MIN_CYCLES
+    return [few and isinstance(edge, LoopEdge) and edge.corroborated for edge in edges]
 
 
 def _solve(

@@ -357,7 +357,9 @@ def close_loops(
     phase.seconds["loops"] = time.perf_counter() - started
     started = time.perf_counter()
     edges = [
-        LoopEdge(d.candidate.source, d.candidate.target, d.measured, d.information)
+        LoopEdge(
+            d.candidate.source, d.candidate.target, d.measured, d.information, corroborated=d.corroborated
+        )
         for d in _accepted(decisions)
     ]
     attitude_deg = ATTITUDE_SIGMA_DEG if settings.ground_up else 0.0
