@@ -218,7 +218,8 @@ def test_a_revisit_is_registered_without_the_odometry_and_accepted(sample_nodes)
 def test_starts_that_begin_together_corroborate_nothing(sample_nodes) -> None:
     """An odometry 0.4 m off: the network's start lands within a metre of it, so their ending in one
     fit says nothing a single start would not."""
-    from vcr_odom.loops.verify import CORROBORATING_STARTS_M, LoopVerifier
+    from vcr_odom.loops.corroboration import CORROBORATING_STARTS_M
+    from vcr_odom.loops.verify import LoopVerifier
     from vcr_odom.registration.vcr import VcrRegistrar
 
     nodes, truth = sample_nodes

@@ -27,11 +27,11 @@ from typing import Any
 import numpy as np
 import open3d as o3d
 from numpy.typing import NDArray
-from scipy.spatial import cKDTree
 
 from vcr_odom.errors import DataWarning
 from vcr_odom.geometry import Transform, invert, make_transform, motion_difference, rotation_angle
 from vcr_odom.loops.candidates import LoopCandidate
+from vcr_odom.loops.corroboration import corroborated, weakest_share
 from vcr_odom.loops.drift import DriftModel
 from vcr_odom.loops.nodes import (
     CLOUD_VOXEL_M,
@@ -42,7 +42,6 @@ from vcr_odom.loops.nodes import (
     submap_cloud,
     submap_members,
 )
-from vcr_odom.odometry.degeneracy import WEAK_AXIS_SHARE
 from vcr_odom.registration.vcr import VcrFrame, VcrRegistrar
 
 MIN_FITNESS = 0.5
@@ -113,14 +112,6 @@ both false loops registered such submaps (5-10 flagged frames in each of their f
 off the truth; every right submap loop on the courtyard walks and car drives (884, 894, 899, 807) had
 0 or 1 in each. Unseen 2600-frame walks 1001 and 1003: three false submap loops (20-33 m off), 4-9 in
 one submap of each, rejected; no right loop lost."""
-CORROBORATING_STARTS_M = 1.0
-CORROBORATING_FITNESS = 0.02
-"""The network's start and the odometry's, at least this far apart (metres, on every node grid: the
-network's error does not shrink indoors), that end within :data:`PROBE_RETURN_M` of each other at
-overlaps this close corroborate the fit (:func:`_corroborated`). Starts that differ by a turn only
-corroborate nothing: on the indoor walks with their heading drifted 10-20 deg per 100 m, false fits
-3.5 m along a corridor had both starts converge from 0.1-0.9 m apart; right ones from 1.3-5.8 m on the
-courtyard walks and 1.7-2.6 m indoors (docs/benchmarks.md, "Loops that measure the drift")."""
 CHECKS = (
     "points",
     "doubted_submap",
@@ -155,8 +146,7 @@ class LoopDecision:
     information: NDArray[np.float64] | None = None
     scores: dict[str, Any] = field(default_factory=dict)
     corroborated: bool = False
-    """Both starts, far apart, polished into the one fit (:func:`_corroborated`): the pose graph trusts
-    it where too few cycles can weigh it (:mod:`~vcr_odom.loops.graph`)."""
+    """Its two starts agreed (:mod:`~vcr_odom.loops.corroboration`): the pose graph's trust."""
 
     def to_dict(self) -> dict[str, Any]:
         candidate = self.candidate
@@ -276,9 +266,9 @@ class LoopVerifier:
         decision.accepted = not decision.check
         if decision.accepted and not submaps:
             decision.scores["weakest_share"] = round(
-                _weakest_share(source_cloud, target_cloud, decision.measured, scale), 4
+                weakest_share(source_cloud, target_cloud, decision.measured, POLISH_STAGES[-1][0] * scale), 4
             )
-            decision.corroborated = _corroborated(decision.scores, scale)
+            decision.corroborated = corroborated(decision.scores, PROBE_RETURN_M * scale)
         if decision.accepted:  # the submaps' geometry, also where the source's own cloud measured the fit
             decision.information = _information(
                 source_cloud, target_cloud, decision.measured, fit.inlier_rmse, scale
@@ -501,38 +491,6 @@ def _information(
     count = max(float(hessian[5, 5]), 1.0)  # the translation block's diagonal counts correspondences
     noise = max(float(rmse), 0.05)
     return np.asarray(hessian) * (EFFECTIVE_POINTS / count) / noise**2
-
-
-def _corroborated(scores: dict[str, Any], scale: float) -> bool:
-    """The two starts, at least :data:`CORROBORATING_STARTS_M` apart, ended in the same fit (within
-    :data:`PROBE_RETURN_M`, at overlaps :data:`CORROBORATING_FITNESS` apart), and the fit measures every
-    direction (``weakest_share`` at least the polish's
-    :data:`~vcr_odom.odometry.degeneracy.WEAK_AXIS_SHARE`: a footpath seen along its length lets both
-    starts slide to the same wrong place, 1.4 m off on courtyard walk 945). Nodes' own clouds only: a
-    submap is the odometry's picture, and both starts fit a bent one alike (walk 950: 11.8 deg off)."""
-    return (
-        scores["starts_before_m"] >= CORROBORATING_STARTS_M
-        and scores["starts_apart_m"] <= PROBE_RETURN_M * scale
-        and abs(scores["fitness"] - scores["other_start_fitness"]) <= CORROBORATING_FITNESS
-        and scores["weakest_share"] >= WEAK_AXIS_SHARE
-    )
-
-
-def _weakest_share(
-    source: o3d.geometry.PointCloud, target: o3d.geometry.PointCloud, transform: Transform, scale: float
-) -> float:
-    """The smallest share of the fit's correspondence normals along any direction (the eigenvalues of
-    their mean outer product add up to 1): near 0 where the fit could slide (a corridor, a footpath
-    between walls seen along it)."""
-    transform = np.asarray(transform, dtype=np.float64)
-    points = np.asarray(source.points) @ transform[:3, :3].T + transform[:3, 3]
-    distances, nearest = cKDTree(np.asarray(target.points)).query(
-        points, distance_upper_bound=POLISH_STAGES[-1][0] * scale
-    )
-    normals = np.asarray(target.normals)[nearest[np.isfinite(distances)]]
-    if len(normals) == 0:
-        return 0.0
-    return float(np.linalg.eigvalsh(normals.T @ normals / len(normals))[0])
 
 
 def _either_narrow(source: Node, target: Node) -> bool:

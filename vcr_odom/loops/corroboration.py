@@ -1,0 +1,63 @@
+"""Whether a verified loop's two starts corroborate its fit: the network's start and the odometry's,
+far apart, polished into the one fit, on a scene that measures every direction.
+
+Why: a handheld walk's odometry drifts 15-27 deg a lap, and where its loops are too few to close
+cycles the pose graph could only weigh them against the drift model's car-sized sigmas, which dropped
+right loops as readily as false ones (:mod:`~vcr_odom.loops.graph`). Two starts a metre or more apart
+that end in one fit are a second measurement of the place; the fit's correspondence normals must
+hold every direction, since along a footpath or a corridor both starts slide to the same wrong place.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import open3d as o3d
+from scipy.spatial import cKDTree
+
+from vcr_odom.geometry import Transform
+from vcr_odom.odometry.degeneracy import WEAK_AXIS_SHARE
+
+CORROBORATING_STARTS_M = 1.0
+CORROBORATING_FITNESS = 0.02
+"""The two starts at least this far apart (metres, on every node grid: the network's error does not
+shrink indoors) must end within the probe's return distance of each other at overlaps this close.
+Starts that differ by a turn only corroborate nothing: on the indoor walks with their heading drifted
+10-20 deg per 100 m, false fits 2.3-3.6 m along a corridor had both starts converge from 0.1-0.9 m
+apart; right ones from 1.3-12.6 m on the courtyard walks and 1.7-2.6 m indoors (docs/benchmarks.md,
+"Loops that measure the drift")."""
+
+
+def corroborated(scores: dict[str, Any], returns_m: float) -> bool:
+    """From a loop's scores (:class:`~vcr_odom.loops.verify.LoopDecision`): its starts began at least
+    :data:`CORROBORATING_STARTS_M` apart and ended within ``returns_m`` at overlaps
+    :data:`CORROBORATING_FITNESS` apart, and ``weakest_share`` is at least the polish's
+    :data:`~vcr_odom.odometry.degeneracy.WEAK_AXIS_SHARE` (along a footpath seen end on, both starts
+    slid to the same place 1.4 m off on courtyard walk 945). Only fits of the nodes' own clouds are
+    scored so: a submap is the odometry's picture, and both starts fit a bent one alike (walk 950:
+    11.8 deg off)."""
+    return (
+        scores["starts_before_m"] >= CORROBORATING_STARTS_M
+        and scores["starts_apart_m"] <= returns_m
+        and abs(scores["fitness"] - scores["other_start_fitness"]) <= CORROBORATING_FITNESS
+        and scores["weakest_share"] >= WEAK_AXIS_SHARE
+    )
+
+
+def weakest_share(
+    source: o3d.geometry.PointCloud,
+    target: o3d.geometry.PointCloud,
+    transform: Transform,
+    max_distance: float,
+) -> float:
+    """The smallest share of the fit's correspondence normals (``target``'s, at the nearest point
+    within ``max_distance`` of each transformed ``source`` point) along any direction: the eigenvalues
+    of their mean outer product add up to 1. Near 0 where the fit could slide; 0 without a pair."""
+    transform = np.asarray(transform, dtype=np.float64)
+    points = np.asarray(source.points) @ transform[:3, :3].T + transform[:3, 3]
+    distances, nearest = cKDTree(np.asarray(target.points)).query(points, distance_upper_bound=max_distance)
+    normals = np.asarray(target.normals)[nearest[np.isfinite(distances)]]
+    if len(normals) == 0:
+        return 0.0
+    return float(np.linalg.eigvalsh(normals.T @ normals / len(normals))[0])
