@@ -209,9 +209,8 @@ def test_a_revisit_is_registered_without_the_odometry_and_accepted(sample_nodes)
     assert np.linalg.norm(error[:3, 3]) < 0.2
     assert math.degrees(rotation_angle(error[:3, :3])) < 0.5
     assert decision.information is not None and np.all(np.linalg.eigvalsh(decision.information) > 0)
-    assert decision.corroborated, (
-        decision.scores
-    )  # the network's start, 1.8 m from the odometry's, ends in its fit
+    # the network's start, 1.8 m from the odometry's, ends in the same fit
+    assert decision.corroborated, decision.scores
     assert decision.to_dict()["corroborated"] is True
 
 

@@ -17,7 +17,7 @@ its positions were right ended 0.35 m off the truth against 0.28 m (unseen 877).
 Why a corroborated loop keeps its full weight where the loops close too few cycles to measure the
 odometry's noise: a handheld walk's heading drifts 15-27 deg a lap round a ~60 m courtyard, inside the
 drift bound, and the graph's sigmas (a car's) made its one or two right loops outliers; the rounds
-dropped them (weights 0.09-0.47) as they dropped the false fits (0.00-0.47), and no weight told them
+dropped them (weights 0.02-0.47) as they dropped the false fits (0.00-0.47), and no weight told them
 apart. A loop whose two starts, a metre or more apart, polished into the one fit on a scene that
 measures every direction (:attr:`~vcr_odom.loops.verify.LoopDecision.corroborated`) was right on every
 courtyard walk and indoor walk replayed. Not on every drive: an HDL-64E figure eight (825) has a
