@@ -120,7 +120,7 @@ def test_a_walks_lone_loop_is_kept_where_its_two_starts_agreed() -> None:
     doubted = optimise(nodes, [LoopEdge(21, 1, measured, EXACT)])
     assert doubted.kept == [False] and np.array_equal(doubted.node_poses, np.stack(odometry))
     kept = optimise(nodes, [LoopEdge(21, 1, measured, EXACT, corroborated=True)])
-    assert kept.kept == [True] and kept.weights == [1.0]
+    assert kept.kept == [True] and kept.weights == [1.0] and kept.trusted == 1 and doubted.trusted == 0
     assert error_before > 3.0
     assert np.linalg.norm(kept.node_poses[21][:3, 3] - truth[21][:3, 3]) < 0.1
 

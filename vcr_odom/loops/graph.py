@@ -151,6 +151,8 @@ class GraphResult:
     """Each odometry edge's heading sigma factor (:func:`~vcr_odom.loops.heading_support.heading_sigma_factors`)."""
     fit_factors: NDArray[np.float64] | None = None
     """Each odometry edge's factor on both sigmas (:func:`~vcr_odom.loops.odometry_doubts.fit_sigma_factors`)."""
+    trusted: int = 0
+    """Loops the rounds kept at full weight (:func:`_trusted`)."""
 
 
 def factor_summary(factors: NDArray[np.float64]) -> dict[str, float | int | None]:
@@ -260,7 +262,16 @@ def optimise(
     poses = _solve(odometry, final_sigmas, edges, final)
     n = len(loops)
     return GraphResult(
-        poses, weights[:n], kept[:n], up, kept[n:].count(False), scale, outliers, heading_factors, fitted
+        poses,
+        weights[:n],
+        kept[:n],
+        up,
+        kept[n:].count(False),
+        scale,
+        outliers,
+        heading_factors,
+        fitted,
+        sum(trusted[:n]),
     )
 
 
