@@ -14,10 +14,8 @@ from typing import Any
 
 import numpy as np
 import open3d as o3d
-from scipy.spatial import cKDTree
 
-from vcr_odom.geometry import Transform
-from vcr_odom.odometry.degeneracy import WEAK_AXIS_SHARE
+from vcr_odom.odometry.degeneracy import WEAK_AXIS_SHARE, shares_of
 
 CORROBORATING_STARTS_M = 1.0
 CORROBORATING_FITNESS = 0.02
@@ -46,18 +44,12 @@ def corroborated(scores: dict[str, Any], returns_m: float) -> bool:
 
 
 def weakest_share(
-    source: o3d.geometry.PointCloud,
-    target: o3d.geometry.PointCloud,
-    transform: Transform,
-    max_distance: float,
+    target: o3d.geometry.PointCloud, fit: o3d.pipelines.registration.RegistrationResult
 ) -> float:
-    """The smallest share of the fit's correspondence normals (``target``'s, at the nearest point
-    within ``max_distance`` of each transformed ``source`` point) along any direction: the eigenvalues
-    of their mean outer product add up to 1. Near 0 where the fit could slide; 0 without a pair."""
-    transform = np.asarray(transform, dtype=np.float64)
-    points = np.asarray(source.points) @ transform[:3, :3].T + transform[:3, 3]
-    distances, nearest = cKDTree(np.asarray(target.points)).query(points, distance_upper_bound=max_distance)
-    normals = np.asarray(target.normals)[nearest[np.isfinite(distances)]]
-    if len(normals) == 0:
+    """The smallest share of the fit's correspondence normals (``target``'s, at the pairs open3d's ICP
+    ended with) along any direction (:func:`~vcr_odom.odometry.degeneracy.shares_of`). Near 0 where the
+    fit could slide; 0 without a pair."""
+    pairs = np.asarray(fit.correspondence_set)
+    if len(pairs) == 0:
         return 0.0
-    return float(np.linalg.eigvalsh(normals.T @ normals / len(normals))[0])
+    return float(shares_of(np.asarray(target.normals)[pairs[:, 1]])[0][0])

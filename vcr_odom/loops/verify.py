@@ -265,9 +265,7 @@ class LoopVerifier:
             decision.check, decision.reason = self._on_own_scan(decision, source, target_cloud, scale)
         decision.accepted = not decision.check
         if decision.accepted and not submaps:
-            decision.scores["weakest_share"] = round(
-                weakest_share(source_cloud, target_cloud, decision.measured, POLISH_STAGES[-1][0] * scale), 4
-            )
+            decision.scores["weakest_share"] = round(weakest_share(target_cloud, fit), 4)
             decision.corroborated = corroborated(decision.scores, PROBE_RETURN_M * scale)
         if decision.accepted:  # the submaps' geometry, also where the source's own cloud measured the fit
             decision.information = _information(

@@ -65,7 +65,12 @@ def normal_shares(points: np.ndarray, radius: float) -> tuple[np.ndarray, np.nda
         return np.full(3, np.nan), np.eye(3)
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(xyz))
     cloud.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=radius, max_nn=NORMAL_NEIGHBOURS))
-    normals = np.asarray(cloud.normals)
+    return shares_of(np.asarray(cloud.normals))
+
+
+def shares_of(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eigenvalues (ascending, adding up to 1) and eigenvectors (columns) of the mean outer product of
+    unit ``normals`` (rows): how much of the surfaces faces each direction."""
     return np.linalg.eigh(normals.T @ normals / len(normals))
 
 
