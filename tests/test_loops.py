@@ -229,6 +229,51 @@ def test_starts_that_begin_together_corroborate_nothing(sample_nodes) -> None:
     assert not decision.corroborated
 
 
+def test_starts_that_end_apart_on_surfaces_facing_one_way_are_ambiguous(sample_nodes, monkeypatch) -> None:
+    """The odometry's start 14 m off ends 3 m from the network's fit at overlap 0.63 against 0.90:
+    on the street, whose surfaces face every way, the better fit wins; were they to hardly face one
+    way (a footpath seen end on: walk 971's false loop, 6.3 m off at overlaps 0.87 and 0.71), overlap
+    says nothing along it and the candidate is ambiguous. Starts that end in one fit stay accepted."""
+    from vcr_odom.loops import verify
+    from vcr_odom.odometry.degeneracy import WEAK_AXIS_SHARE
+    from vcr_odom.registration.vcr import VcrRegistrar
+
+    nodes, truth = sample_nodes
+    network = VcrRegistrar(device="cpu")
+    far = _candidate(
+        truth, make_transform(rotation_from_euler_zyx(math.radians(3), 0, 0), [11.0, -8.5, 0.5]), 280.0, 2200
+    )
+    near = _candidate(
+        truth, make_transform(rotation_from_euler_zyx(math.radians(3), 0, 0), [8.0, 0.0, 0.0]), 280.0, 2200
+    )
+    street = verify.LoopVerifier(network).verify(far, nodes)
+    assert street.accepted, street.reason
+    scores = street.scores
+    assert scores["starts_apart_m"] > 2.0 and scores["fitness"] - scores["other_start_fitness"] > 0.2
+    assert scores["weakest_share"] >= WEAK_AXIS_SHARE
+    monkeypatch.setattr(verify, "weakest_share", lambda target, fit: 0.001)
+    footpath = verify.LoopVerifier(network).verify(far, nodes)
+    assert footpath.check == "ambiguous" and "weakest share 0.001" in footpath.reason
+    together = verify.LoopVerifier(network).verify(near, nodes)
+    assert together.accepted and together.scores["starts_apart_m"] < 0.1, together.reason
+
+
+def test_what_counts_as_two_fits_overlap_cannot_tell_apart() -> None:
+    """Walk 971's false loop and the right loops whose fits hardly face one way (starts that ended
+    together), or face every way (924: 11 m apart, overlaps 0.22 apart), or are submaps (no share)."""
+    from vcr_odom.loops.verify import ambiguous
+
+    walk_971 = {"starts_apart_m": 4.342, "weakest_share": 0.0025}
+    assert ambiguous(walk_971, 0.158, 0.0, 1.0)
+    assert not ambiguous({"starts_apart_m": 11.123, "weakest_share": 0.0304}, 0.224, 0.0, 1.0)
+    assert not ambiguous({"starts_apart_m": 0.006, "weakest_share": 0.0057}, 0.002, 0.0, 1.0)
+    assert ambiguous({"starts_apart_m": 0.2, "weakest_share": 0.003}, 0.3, 8.0, 1.0)  # turned apart
+    submaps = {"starts_apart_m": 7.776}
+    assert not ambiguous(submaps, 0.177, 0.0, 1.0) and ambiguous(submaps, 0.1, 0.0, 1.0)
+    indoors = {"starts_apart_m": 0.8, "weakest_share": 0.003}  # a room's grid halves the distances
+    assert ambiguous(indoors, 0.3, 0.0, 0.5) and not ambiguous(indoors, 0.3, 0.0, 1.0)
+
+
 def test_a_look_alike_a_block_away_is_rejected_as_beyond_the_drift(sample_nodes) -> None:
     """The same two scans, but the odometry puts them 30 m apart after 60 m of driving: the fit is
     perfect, and only the drift bound can say that it is not this place."""
@@ -253,7 +298,9 @@ def test_a_spinning_sensor_fit_overlapping_under_half_is_rejected(sample_nodes, 
 
     nodes, truth = sample_nodes
     candidate = _candidate(truth, np.eye(4), 150.0)
-    fit = SimpleNamespace(fitness=0.45, inlier_rmse=0.45, transformation=truth)
+    fit = SimpleNamespace(
+        fitness=0.45, inlier_rmse=0.45, transformation=truth, correspondence_set=np.zeros((0, 2))
+    )
     monkeypatch.setattr(verify, "_polish", lambda *args: fit)
     decision = verify.LoopVerifier(VcrRegistrar(device="cpu")).verify(candidate, nodes)
     assert decision.check == "overlap" and decision.reason == "rejected: overlap 0.45 < 0.5"

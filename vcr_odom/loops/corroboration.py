@@ -12,10 +12,7 @@ from __future__ import annotations
 
 from typing import Any
 
-import numpy as np
-import open3d as o3d
-
-from vcr_odom.odometry.degeneracy import WEAK_AXIS_SHARE, shares_of
+from vcr_odom.odometry.degeneracy import WEAK_AXIS_SHARE
 
 CORROBORATING_STARTS_M = 1.0
 CORROBORATING_FITNESS = 0.02
@@ -41,15 +38,3 @@ def corroborated(scores: dict[str, Any], returns_m: float) -> bool:
         and abs(scores["fitness"] - scores["other_start_fitness"]) <= CORROBORATING_FITNESS
         and scores["weakest_share"] >= WEAK_AXIS_SHARE
     )
-
-
-def weakest_share(
-    target: o3d.geometry.PointCloud, fit: o3d.pipelines.registration.RegistrationResult
-) -> float:
-    """The smallest share of the fit's correspondence normals (``target``'s, at the pairs open3d's ICP
-    ended with) along any direction (:func:`~vcr_odom.odometry.degeneracy.shares_of`). Near 0 where the
-    fit could slide; 0 without a pair."""
-    pairs = np.asarray(fit.correspondence_set)
-    if len(pairs) == 0:
-        return 0.0
-    return float(shares_of(np.asarray(target.normals)[pairs[:, 1]])[0][0])

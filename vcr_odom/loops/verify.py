@@ -13,8 +13,8 @@ may win: a crossing of two streets fits turned by 90 or 180 deg too, and the odo
 Acceptance, all of: the clouds overlap (``fitness``) and fit (``inlier_rmse``); the correction the
 loop asks of the odometry is within the drift the odometry may have gathered between the visits
 (:class:`DriftModel`: a look-alike place a block away asks for a block); and the two starts do not
-end in two different fits of similar quality (an ambiguous, repetitive place).
-"""
+end in two different fits of similar quality (an ambiguous, repetitive place), nor in two different
+fits at all where the surfaces hardly face one direction (:func:`ambiguous`)."""
 
 from __future__ import annotations
 
@@ -31,8 +31,9 @@ from numpy.typing import NDArray
 from vcr_odom.errors import DataWarning
 from vcr_odom.geometry import Transform, invert, make_transform, motion_difference, rotation_angle
 from vcr_odom.loops.candidates import LoopCandidate
-from vcr_odom.loops.corroboration import corroborated, weakest_share
+from vcr_odom.loops.corroboration import corroborated
 from vcr_odom.loops.drift import DriftModel
+from vcr_odom.loops.fit_information import loop_information, weakest_share, weakest_translation
 from vcr_odom.loops.nodes import (
     CLOUD_VOXEL_M,
     NARROW_FIELD_COVERAGE,
@@ -42,6 +43,7 @@ from vcr_odom.loops.nodes import (
     submap_cloud,
     submap_members,
 )
+from vcr_odom.odometry.degeneracy import WEAK_AXIS_SHARE
 from vcr_odom.registration.vcr import VcrFrame, VcrRegistrar
 
 MIN_FITNESS = 0.5
@@ -126,9 +128,6 @@ CHECKS = (
 dropped by the pose graph). ``drift_bound`` alone means the fit passed overlap and RMSE: a look-alike
 place, or odometry that drifts more than the bound allows (``map`` says how many, and the options that
 widen it)."""
-EFFECTIVE_POINTS = 50.0
-"""Independent points behind a loop's uncertainty: voxel points are correlated, so the ICP Hessian of
-all of them would make a loop ~100x more certain than the odometry it corrects."""
 
 
 @dataclass
@@ -254,6 +253,8 @@ class LoopVerifier:
             and not self._within_bound(candidate, other.transformation)
         ):
             other = None  # another arm of a crossing, not a fit the odometry could have drifted to
+        if not submaps:  # a submap's normals are the ground's, whatever its walls hold
+            decision.scores["weakest_share"] = round(weakest_share(target_cloud, fit), 4)
         min_overlap = MIN_FITNESS_NARROW if narrow else MIN_FITNESS
         decision.check, decision.reason = self._judge(decision, fit, other, apart_deg, scale, min_overlap)
         if not decision.check:
@@ -265,11 +266,10 @@ class LoopVerifier:
             decision.check, decision.reason = self._on_own_scan(decision, source, target_cloud, scale)
         decision.accepted = not decision.check
         if decision.accepted and not submaps:
-            decision.scores["weakest_share"] = round(weakest_share(target_cloud, fit), 4)
             decision.corroborated = corroborated(decision.scores, PROBE_RETURN_M * scale)
         if decision.accepted:  # the submaps' geometry, also where the source's own cloud measured the fit
-            decision.information = _information(
-                source_cloud, target_cloud, decision.measured, fit.inlier_rmse, scale
+            decision.information = loop_information(
+                source_cloud, target_cloud, decision.measured, fit.inlier_rmse, POLISH_STAGES[-1][0] * scale
             )
         return decision
 
@@ -329,16 +329,12 @@ class LoopVerifier:
                 f"{scores['correction_deg']:.1f} deg, beyond its drift over {candidate.path_m:.0f} m / "
                 f"{candidate.frames} frames ({scores['bound_m']:.2f} m / {scores['bound_deg']:.1f} deg)"
             )
-        far_m, far_deg, close_fitness = AMBIGUITY
-        far_m *= scale
-        if (
-            other is not None
-            and (scores["starts_apart_m"] > far_m or apart_deg > far_deg)
-            and fit.fitness - other.fitness < close_fitness
-        ):
+        if other is not None and ambiguous(scores, fit.fitness - other.fitness, apart_deg, scale):
+            share = scores.get("weakest_share", 1.0)
+            why = f" along a direction its surfaces hardly face (weakest share {share:.3f})"
             return "ambiguous", (
                 f"rejected: ambiguous: the two starts end {scores['starts_apart_m']:.1f} m apart with "
-                f"fitness {fit.fitness:.2f} and {other.fitness:.2f}"
+                f"fitness {fit.fitness:.2f} and {other.fitness:.2f}{why if share < WEAK_AXIS_SHARE else ''}"
             )
         return "", "accepted"
 
@@ -356,7 +352,7 @@ class LoopVerifier:
         along a street seen by a narrow field of view, ICP slides as far as it is pushed, and a loop
         there would pin the map at a place the scans cannot tell apart."""
         measured = np.asarray(decision.measured)
-        direction = _weakest_translation(source, target, measured, scale)
+        direction = weakest_translation(source, target, measured, POLISH_STAGES[-1][0] * scale)
         worst = 0.0
         for sign in (1.0, -1.0):
             start = measured.copy()
@@ -456,39 +452,19 @@ def _polish(
     return result
 
 
-def _weakest_translation(
-    source: o3d.geometry.PointCloud, target: o3d.geometry.PointCloud, transform: Transform, scale: float
-) -> NDArray[np.float64]:
-    """The unit translation the fit constrains least (the translation block of the ICP Hessian with
-    rotation eliminated: its eigenvector of the smallest eigenvalue), in the target frame."""
-    hessian = np.asarray(
-        o3d.pipelines.registration.get_information_matrix_from_point_clouds(
-            source, target, POLISH_STAGES[-1][0] * scale, transform
-        )
-    )
-    rotation, cross, translation = hessian[:3, :3], hessian[:3, 3:], hessian[3:, 3:]
-    reduced = translation - cross.T @ np.linalg.pinv(rotation) @ cross
-    _, vectors = np.linalg.eigh(reduced)
-    return vectors[:, 0]
-
-
-def _information(
-    source: o3d.geometry.PointCloud,
-    target: o3d.geometry.PointCloud,
-    transform: Transform,
-    rmse: float,
-    scale: float,
-) -> NDArray[np.float64]:
-    """The loop edge's information (open3d order: rotation, then translation): the ICP Hessian of the
-    fit's geometry (a corridor is weak along it), scaled to :data:`EFFECTIVE_POINTS` points of
-    the fit's own noise."""
-    distance = POLISH_STAGES[-1][0] * scale
-    hessian = o3d.pipelines.registration.get_information_matrix_from_point_clouds(
-        source, target, distance, transform
-    )
-    count = max(float(hessian[5, 5]), 1.0)  # the translation block's diagonal counts correspondences
-    noise = max(float(rmse), 0.05)
-    return np.asarray(hessian) * (EFFECTIVE_POINTS / count) / noise**2
+def ambiguous(scores: dict[str, Any], fitness_gap: float, apart_deg: float, scale: float) -> bool:
+    """Whether the two starts ended in two fits (:data:`AMBIGUITY` apart, ``apart_deg`` the turn
+    between them) that overlap cannot tell apart: ``fitness_gap`` (the better's over the other's)
+    within its margin, or, on the nodes' own clouds, any gap where the fit's surfaces hardly face one
+    direction (``weakest_share`` under the polish's :data:`~vcr_odom.odometry.degeneracy.WEAK_AXIS_SHARE`):
+    along it, overlap says nothing. On the courtyard walks and car crossings replayed, every such fit
+    whose starts ended apart was false (walk 971: 6.3 m off at overlaps 0.87 and 0.71; 561, 892, 896,
+    926), and every right one had both starts end in one fit (891, 941, 942, 947, 957, 561, 841)."""
+    far_m, far_deg, close_fitness = AMBIGUITY
+    if scores["starts_apart_m"] <= far_m * scale and apart_deg <= far_deg:
+        return False
+    sliding = scores.get("weakest_share", 1.0) < WEAK_AXIS_SHARE
+    return sliding or fitness_gap < close_fitness
 
 
 def _either_narrow(source: Node, target: Node) -> bool:
