@@ -457,9 +457,11 @@ def ambiguous(scores: dict[str, Any], fitness_gap: float, apart_deg: float, scal
     between them) that overlap cannot tell apart: ``fitness_gap`` (the better's over the other's)
     within its margin, or, on the nodes' own clouds, any gap where the fit's surfaces hardly face one
     direction (``weakest_share`` under the polish's :data:`~vcr_odom.odometry.degeneracy.WEAK_AXIS_SHARE`):
-    along it, overlap says nothing. On the courtyard walks and car crossings replayed, every such fit
-    whose starts ended apart was false (walk 971: 6.3 m off at overlaps 0.87 and 0.71; 561, 892, 896,
-    926), and every right one had both starts end in one fit (891, 941, 942, 947, 957, 561, 841)."""
+    along it, overlap says nothing. On the courtyard walks and car crossings it was chosen on, every
+    such fit whose starts ended apart was false (walk 971: 6.3 m off at overlaps 0.87 and 0.71; 561,
+    892, 896, 926), and every right one had both starts end in one fit (891, 941, 942, 947, 957, 561,
+    841); on walks made since, it also took a loop 0.72 m off (998; docs/benchmarks.md, "Two fits on
+    a footpath")."""
     far_m, far_deg, close_fitness = AMBIGUITY
     if scores["starts_apart_m"] <= far_m * scale and apart_deg <= far_deg:
         return False
