@@ -331,10 +331,11 @@ class LoopVerifier:
             )
         if other is not None and ambiguous(scores, fit.fitness - other.fitness, apart_deg, scale):
             share = scores.get("weakest_share", 1.0)
-            why = f" along a direction its surfaces hardly face (weakest share {share:.3f})"
+            sliding = f" along a direction its surfaces hardly face (weakest share {share:.3f})"
             return "ambiguous", (
                 f"rejected: ambiguous: the two starts end {scores['starts_apart_m']:.1f} m apart with "
-                f"fitness {fit.fitness:.2f} and {other.fitness:.2f}{why if share < WEAK_AXIS_SHARE else ''}"
+                f"fitness {fit.fitness:.2f} and {other.fitness:.2f}"
+                + (sliding if share < WEAK_AXIS_SHARE else "")
             )
         return "", "accepted"
 
