@@ -98,9 +98,10 @@ FIELDS = MapSettings.model_fields
     "--ground-up/--no-ground-up",
     default=FIELDS["ground_up"].default,
     show_default=True,
-    help="Hold each node's tilt to the ground seen in its scan wherever the odometry's tilt drifted "
-    "(more than 6 deg from it at 10 % of the nodes, beyond a road's grade), which loops cannot see; turn off where the "
-    "ground is far from level (steep hills, stairs).",
+    help="Hold each node's tilt to the up measured in its cloud wherever the odometry's tilt drifted "
+    "from it, which loops cannot see: the walls' up (used beyond 2.5 deg at 10 % of the nodes) where "
+    "walls were seen, else the ground's (beyond 6 deg, a road's grade); turn off among leaning "
+    "structures or on stairs.",
 )
 @initial_guess_option
 @vcr_options

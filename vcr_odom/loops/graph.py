@@ -34,15 +34,14 @@ heading drifted 15 deg per 100 m on purpose) was kept, since loose edges let the
 The same holds for the edges whose frames fitted their predecessors poorly
 (:mod:`~vcr_odom.loops.odometry_doubts`), whose factor scales both sigmas in the final solve.
 
-Why up directions (:mod:`~vcr_odom.loops.ground`): loops cannot see a tilt that drifted between them,
-since a lobe driven in a tilted plane still meets itself at its ends. Each node's ground normal holds
-its roll and pitch to the world's up, loosely (:data:`ATTITUDE_SIGMA_DEG`: roads slope); its heading
-and position stay free. They act only with loops: without any, the odometry is returned untouched.
+Why up directions (:mod:`~vcr_odom.loops.up_priors`): loops cannot see a tilt that drifted between
+them, since a lobe driven in a tilted plane still meets itself at its ends. Each node's measured up
+(its walls', else its ground's) holds its roll and pitch; its heading and position stay free. They act
+only with loops: without any, the odometry is returned untouched.
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -51,11 +50,13 @@ import open3d as o3d
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation, Slerp
 
-from vcr_odom.geometry import Transform, invert
+from vcr_odom.geometry import invert
 from vcr_odom.loops.cycles import MIN_CYCLES, OdometryScale, cycle_outliers, loop_cycles, odometry_scale
 from vcr_odom.loops.drift import DriftModel
+from vcr_odom.loops.edges import GraphEdge
 from vcr_odom.loops.heading_support import heading_sigma_factors
 from vcr_odom.loops.nodes import Node
+from vcr_odom.loops.up_priors import ATTITUDE_SIGMA_DEG, UpPriors, up_priors
 
 CAUCHY_SCALE = 3.0
 """Residual (in standard deviations, over the edge's dimensions) where an edge's weight halves."""
@@ -65,10 +66,6 @@ DROP_WEIGHT = 0.5
 trajectory into place, is beyond 3 sigma per dimension. Every right loop on tuning seeds 532-543 ends
 at 0.95 or more; a 1.25 m misfit on unseen drive 825 (both starts converged on it, fitness 0.75) ended
 at 0.21 and was kept under the earlier 0.1."""
-ATTITUDE_SIGMA_DEG = 2.0
-"""How far a node's measured up may be from the truth: road slopes plus the fit's noise (the measured
-up is within 0.6-2.3 deg of true up at p99 on the tuning drives and the KITTI sample). Chosen on
-synthetic seeds 532-539 from 0.5-5 deg: 1 deg suited a 19 deg tilt drift best, 3 deg a 2 deg one."""
 LOOP_SHARE = 0.04
 """The loops' information in the final solve, as a share of their own (sigma x5); the rounds that find
 disagreeing loops use all of it. A passage is pinned by a loop every 6 m, each measured to 2-8 cm,
@@ -77,28 +74,6 @@ their own scatter on the passage's shape. Chosen on tuning seeds 532-543 from 1,
 at 0.04 the map's ATE fell on eight of ten drives (0.255 -> 0.195 m on an Avia figure eight, 0.075
 -> 0.050 m on a highway loop) and rose on two by 4-7 %; the outlier rounds are unchanged, so no loop
 they drop is kept (weaker loops there would let a 7 m false loop through the Cauchy kernel)."""
-UP_REFERENCE_M = 30.0
-"""The world's up is the mean measured up of the nodes within this path of the start, where the
-odometry's tilt has not drifted yet (one scan's fit alone can be a degree off)."""
-TILT_AGREEMENT_DEG = 6.0
-"""The priors are given only where the odometry's up disagrees with the measured one by more than this
-at 10 % of the nodes: beyond what a road's grade explains. The ground is only as level as the road,
-and where the odometry's tilt is better than that the priors add the slopes' error: on synthetic
-drives whose roads slope 2-6 deg (a highway, an old town) they doubled to quadrupled the map's ATE
-with the odometry 2-4 deg off the ground; on a 16-beam drive whose tilt drifted 19 deg they cut it from
-0.42 to 0.09 of the odometry's (tuning seeds 532-539)."""
-
-
-@dataclass(frozen=True)
-class GraphEdge:
-    """A constraint ``T_target_source`` between nodes ``source`` and ``target``, with its information
-    (6x6, rotation first as open3d orders it) over ``dof`` dimensions."""
-
-    source: int
-    target: int
-    transform: Transform
-    information: NDArray[np.float64]
-    dof: int = 6
 
 
 @dataclass(frozen=True)
@@ -108,33 +83,6 @@ class LoopEdge(GraphEdge):
     by the rounds where the loops close too few cycles to weigh it (:func:`_trusted`)."""
 
     corroborated: bool = False
-
-
-@dataclass(frozen=True)
-class AttitudePrior(GraphEdge):
-    """Node ``source``'s roll and pitch held to the world's up: an edge to node 0 (the fixed first
-    node) whose transform is the node's pose turned so that its ground normal points up, with
-    information only about the two axes across that normal."""
-
-    dof: int = 2
-
-
-@dataclass(frozen=True)
-class UpPriors:
-    """The up directions the graph was given: ``edges`` (empty when left out), and why: the odometry's
-    disagreement with the measured up (90th percentile over the nodes whose ground was seen)."""
-
-    edges: list[AttitudePrior]
-    tilt_p90_deg: float | None
-    nodes_with_ground: int
-
-    def to_dict(self) -> dict[str, object]:
-        return {
-            "priors": len(self.edges),
-            "nodes_with_ground": self.nodes_with_ground,
-            "odometry_tilt_p90_deg": None if self.tilt_p90_deg is None else round(self.tilt_p90_deg, 3),
-            "used": bool(self.edges),
-        }
 
 
 @dataclass
@@ -165,47 +113,6 @@ def factor_summary(factors: NDArray[np.float64]) -> dict[str, float | int | None
         "median_raised": round(float(np.median(raised)), 3) if len(raised) else None,
         "largest": round(float(factors.max()), 3) if len(factors) else None,
     }
-
-
-def up_priors(nodes: Sequence[Node], sigma_deg: float = ATTITUDE_SIGMA_DEG) -> UpPriors:
-    """One prior per node after the first whose ground was seen, where the odometry's tilt disagrees
-    with the ground beyond :data:`TILT_AGREEMENT_DEG`; none when the start saw no ground."""
-    seen = [
-        (k, node.pose[:3, :3] @ node.ground, node) for k, node in enumerate(nodes) if node.ground is not None
-    ]
-    reference = [world for _, world, node in seen if node.path_m <= UP_REFERENCE_M]
-    if not reference or sigma_deg <= 0:
-        return UpPriors([], None, len(seen))
-    up = np.mean(reference, axis=0)
-    up /= np.linalg.norm(up)
-    tilt_p90 = float(
-        np.percentile([math.degrees(math.acos(min(1.0, float(w @ up)))) for _, w, _ in seen], 90)
-    )
-    if tilt_p90 <= TILT_AGREEMENT_DEG:
-        return UpPriors([], tilt_p90, len(seen))
-    first_inverse = invert(nodes[0].pose)
-    weight = math.radians(sigma_deg) ** -2
-    priors = []
-    for k, world, node in seen:
-        if k == 0:
-            continue
-        assert node.ground is not None
-        wanted = node.pose.copy()
-        wanted[:3, :3] = _turn_onto(world, up) @ node.pose[:3, :3]
-        information = np.zeros((6, 6))
-        information[:3, :3] = weight * (np.eye(3) - np.outer(node.ground, node.ground))
-        priors.append(AttitudePrior(k, 0, first_inverse @ wanted, information))
-    return UpPriors(priors, tilt_p90, len(seen))
-
-
-def _turn_onto(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
-    """The smallest rotation taking direction ``a`` onto ``b``."""
-    a, b = a / np.linalg.norm(a), b / np.linalg.norm(b)
-    axis = np.cross(a, b)
-    sine = float(np.linalg.norm(axis))
-    if sine < 1e-12:
-        return np.eye(3)
-    return Rotation.from_rotvec(axis / sine * math.atan2(sine, float(a @ b))).as_matrix()
 
 
 def _residual_chi2(poses: NDArray[np.float64], edge: GraphEdge) -> float:

@@ -5,7 +5,7 @@ stretch of trajectory still closes its loops: a lobe of a figure eight driven in
 10 degrees meets itself at its ends, so loops leave its middle metres too high or too low. On a
 16-beam car drive that was nearly all of the map's error (docs/benchmarks.md, "Maps that close their loops").
 The ground is seen in every scan of a ground vehicle or a walk, so each node's measured up direction
-holds the graph's tilt, loosely (:data:`~vcr_odom.loops.graph.ATTITUDE_SIGMA_DEG`): roads slope.
+holds the graph's tilt, loosely (:data:`~vcr_odom.loops.up_priors.ATTITUDE_SIGMA_DEG`): roads slope.
 
 Measured on the lowest points near the sensor: far ground is sparse (a 16-beam sensor's rings meet
 the road 6-20 m away), and taking the lowest band first leaves RANSAC a set that is mostly ground,

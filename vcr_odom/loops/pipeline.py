@@ -35,9 +35,10 @@ from vcr_odom.loops.candidates import (
     find_candidates,
 )
 from vcr_odom.loops.drift import DriftModel
-from vcr_odom.loops.graph import ATTITUDE_SIGMA_DEG, LoopEdge, correct_frames, factor_summary, optimise
+from vcr_odom.loops.graph import LoopEdge, correct_frames, factor_summary, optimise
 from vcr_odom.loops.nodes import NODE_SPACING_DEG, NODE_SPACING_M, Node, NodeRecorder
 from vcr_odom.loops.odometry_doubts import OdometryDoubts, fit_sigma_factors
+from vcr_odom.loops.up_priors import ATTITUDE_SIGMA_DEG
 from vcr_odom.loops.verify import CHECKS, LoopDecision, LoopVerifier
 from vcr_odom.mapping import VoxelMap
 from vcr_odom.metrics import EvaluationReport, evaluate
@@ -91,8 +92,8 @@ class LoopOptions(Settings):
     loops: bool = Field(default=True, description="False: the odometry and its map only (a baseline).")
     ground_up: bool = Field(
         default=True,
-        description="Hold each node's tilt to its scan's ground where the odometry's tilt drifted "
-        "(False: loops alone; for ground that is not near level, e.g. steep hills).",
+        description="Hold each node's tilt to the up measured in its cloud (its walls', else its "
+        "ground's) where the odometry's tilt drifted from it (False: loops alone).",
     )
     map_voxel: float = Field(default=0.5, ge=0.05)
 
