@@ -4,6 +4,7 @@ submaps (their neighbours' clouds placed by the odometry)."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 from types import SimpleNamespace
@@ -216,6 +217,23 @@ def test_a_submap_loop_is_measured_with_the_source_scan_not_its_bent_submap(bent
     submaps_only = verify.LoopVerifier(network).verify(candidate, nodes)
     assert submaps_only.accepted and not submaps_only.scores["own_scan"]
     assert degrees_off(truth, submaps_only.measured) > 3.0
+
+
+@pytest.mark.filterwarnings("ignore::vcr_odom.errors.DataWarning")
+def test_a_submap_fit_of_a_walk_that_turned_about_stands_only_on_its_own_scan(bent_walk, monkeypatch) -> None:
+    """A handheld walk turns hundreds of degrees along a submap's path (looks about, corners: 700-900
+    deg a 55 m lap; a node every 20 deg of turn at most); the drift model's 2 % of that is more heading
+    than a loop may be off, so a submap fit the source's own scan cannot measure is refused, where the
+    straight submaps above keep it."""
+    nodes, candidate, _ = bent_walk
+    walked = [dataclasses.replace(node, turned_deg=20.0 * k) for k, node in enumerate(nodes)]
+    network = VcrRegistrar(device="cpu")
+    confirmed = verify.LoopVerifier(network).verify(candidate, walked)
+    assert confirmed.accepted and confirmed.scores["own_scan"], "the own scan measures the fit: kept"
+    monkeypatch.setattr(verify, "OWN_SCAN_FITNESS", 1.1)
+    decision = verify.LoopVerifier(network).verify(candidate, walked)
+    assert not decision.accepted and decision.check == "doubted_submap"
+    assert "bent" in decision.reason and "own scan overlaps" in decision.reason
 
 
 @pytest.mark.filterwarnings("ignore::vcr_odom.errors.DataWarning")

@@ -213,3 +213,11 @@ def submap_cloud(
         parts.append(placed[np.linalg.norm(placed[:, :2], axis=1) <= radius_m])
     merged = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.concatenate(parts)))
     return np.asarray(merged.voxel_down_sample(centre.cloud_voxel).points, dtype=np.float32)
+
+
+def turned_along(nodes: list[Node], members: tuple[int, ...]) -> float:
+    """The angle the odometry turned from the first to the last of ``members`` (degrees, each
+    registration's rotation summed): how far a submap of them may be bent by a heading drift that
+    grows with each turn (:attr:`~vcr_odom.loops.drift.DriftModel.rotation_per_turned`)."""
+    turned = [nodes[k].turned_deg for k in members]
+    return max(turned) - min(turned)

@@ -42,6 +42,7 @@ from vcr_odom.loops.nodes import (
     normal_cloud,
     submap_cloud,
     submap_members,
+    turned_along,
 )
 from vcr_odom.odometry.degeneracy import WEAK_AXIS_SHARE
 from vcr_odom.registration.vcr import VcrFrame, VcrRegistrar
@@ -96,6 +97,12 @@ CROSSING_TURN_DEG = 45.0
 other arm, not a second answer: it does not make the place ambiguous. One shifted without such a turn
 does (a walk whose odometry failed, synthetic 884: the fit within the bound 7.8 m off the truth at
 overlap 0.61, the other start's 0.72)."""
+BENT_SUBMAP_DEG = 3.0
+"""A submap fit whose submaps may be bent more than this (a loop this far off in heading is false) is
+accepted only where the source's own scan confirms it (:data:`OWN_SCAN_FITNESS`). A handheld walk's
+submaps turn 280-700 deg along their 30-60 m (looks about, corners: 6-14 deg at the drift model's 2 %),
+and two of the three walk submap fits the own scan could not confirm were false (956, 950: 12.5 m,
+11.8 deg); a car crossing's turn 6-16 deg (0.3 deg), and its own scans overlap under 0.3 on right fits."""
 OWN_SCAN_FITNESS = 0.3
 """An accepted submap fit is polished once more with the source node's own cloud on the target submap,
 and that fit is the loop's where this share of the cloud overlaps (and it stays within the drift bound).
@@ -263,7 +270,11 @@ class LoopVerifier:
                 decision, source_cloud, target_cloud, fit, scale, returns_m
             )
         if not decision.check and submaps:
-            decision.check, decision.reason = self._on_own_scan(decision, source, target_cloud, scale)
+            turned = max(turned_along(nodes, key[1] or (key[0],)) for key in (source_key, target_key))
+            bend_deg = self.drift.rotation_per_turned * turned  # the drift model's heading share
+            decision.check, decision.reason = self._on_own_scan(
+                decision, source, target_cloud, scale, bend_deg
+            )
         decision.accepted = not decision.check
         if decision.accepted and not submaps:
             decision.corroborated = corroborated(decision.scores, PROBE_RETURN_M * scale)
@@ -274,19 +285,31 @@ class LoopVerifier:
         return decision
 
     def _on_own_scan(
-        self, decision: LoopDecision, source: Node, target: o3d.geometry.PointCloud, scale: float
+        self,
+        decision: LoopDecision,
+        source: Node,
+        target: o3d.geometry.PointCloud,
+        scale: float,
+        bend_deg: float,
     ) -> tuple[str, str]:
         """The source node's own cloud polished on the target submap from the submap fit: the source's
         submap was placed by the odometry round it and carries its heading error into the fit. Where
         the own cloud overlaps (:data:`OWN_SCAN_FITNESS`), its fit is the loop's (``decision.measured``
         and its correction are set) if it stays within the drift bound; if it slides beyond, the scan
-        cannot tell the submap fit's heading, and the check failed is returned as by :meth:`_judge`."""
+        cannot tell the submap fit's heading, and the check failed is returned as by :meth:`_judge`.
+        Where it does not overlap, the submap fit stands, unless the submaps may be bent more than
+        :data:`BENT_SUBMAP_DEG` (``bend_deg``): then nothing measured the fit's heading but the bend."""
         cloud = normal_cloud(source.cloud, source.cloud_voxel)
         own = _polish(cloud, target, decision.measured, scale)
         overlaps = own.fitness >= OWN_SCAN_FITNESS
         within = self._within_bound(decision.candidate, own.transformation)
         decision.scores["own_scan_fitness"] = round(float(own.fitness), 4)
         decision.scores["own_scan"] = overlaps and within
+        if not overlaps and bend_deg > BENT_SUBMAP_DEG:
+            return "doubted_submap", (
+                f"rejected: the submaps turned so much along their path that they may be bent "
+                f"{bend_deg:.0f} deg, and the source's own scan overlaps {own.fitness:.2f} only"
+            )
         if not overlaps:
             return "", "accepted"
         if not within:
