@@ -8,9 +8,10 @@ import math
 import numpy as np
 from test_loops_ground import _lap, _loops, _nodes, _worst_height_error
 
-from vcr_odom.geometry import rotation_from_euler_zyx
+from vcr_odom.geometry import make_transform, rotation_from_euler_zyx
 from vcr_odom.loops.graph import optimise
 from vcr_odom.loops.nodes import Node, voxel_cloud
+from vcr_odom.loops.up_priors import _walls_reference
 from vcr_odom.loops.walls import walls_up
 
 
@@ -124,3 +125,17 @@ def test_walls_that_err_node_by_node_are_not_taken_for_a_drift() -> None:
     result = optimise(nodes, _loops(truth))
     assert result.up is not None and result.up.measured_by == "walls" and result.up.edges == []
     assert result.up.tilt_p90_deg is not None and result.up.tilt_p90_deg < 2.5
+
+
+def test_a_reference_from_walls_facing_one_way_keeps_the_nodes_own_up_where_they_leave_it_free() -> None:
+    """A straight street's fronts pin the roll only; pooled over the first nodes, their pitch is the
+    nodes' own (level here), not whichever free direction the normals' noise favours (2 deg off)."""
+    rng = np.random.default_rng(2)
+    fronts = np.column_stack(
+        [rng.uniform(-30, 30, 6000), np.where(rng.random(6000) < 0.5, -9.0, 9.0), rng.uniform(-1.5, 8, 6000)]
+    )
+    cloud = voxel_cloud(fronts.astype(np.float32), 1.0)
+    nodes = [Node(k, k, make_transform(np.eye(3), [3.0 * k, 0.0, 0.0]), 3.0 * k, cloud) for k in range(12)]
+    walls = [(k, found) for k, node in enumerate(nodes) if (found := walls_up(node.cloud, node.cloud_voxel))]
+    assert len(walls) == len(nodes)
+    assert _angle_deg(_walls_reference(nodes, walls), np.array([0.0, 0.0, 1.0])) < 0.2

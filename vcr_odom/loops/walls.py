@@ -49,7 +49,8 @@ FLOOR_DEG = 0.5
 class WallsUp:
     """``up``: the walls' up in the node's frame; ``information`` (3x3, rad^-2): on the node's
     rotation, about the walls' horizontal axes only; ``scatter``: the sum of the walls' normals'
-    outer products (3x3, the node's frame), which nodes pool where each sees walls facing one way."""
+    outer products with ``up`` held as :func:`_least_tilted` holds it (3x3, the node's frame), which
+    nodes pool where each sees walls facing one way."""
 
     up: NDArray[np.float64]
     information: NDArray[np.float64]
@@ -77,7 +78,7 @@ def walls_up(cloud: NDArray[np.float32], voxel: float) -> WallsUp | None:
     spread = axes.T @ axes / len(walls)  # trace 1: all of it across one axis for walls facing one way
     residual = float(np.mean((walls @ up) ** 2))
     variance = residual * CORRELATED_NORMALS / len(walls) + math.radians(FLOOR_DEG) ** 2
-    return WallsUp(up, 2.0 * spread / variance, walls.T @ walls)
+    return WallsUp(up, 2.0 * spread / variance, walls.T @ walls + _pull(up))
 
 
 def _within(normals: NDArray[np.float64], up: NDArray[np.float64], degrees: float) -> NDArray[np.float64]:
@@ -91,7 +92,12 @@ def _least_tilted(walls: NDArray[np.float64], near: NDArray[np.float64]) -> NDAr
     single wall and the ground leave a horizontal direction perpendicular to both)."""
     if len(walls) < MIN_NORMALS:
         return None
-    pull = NEAR_WEIGHT * (np.eye(3) - np.outer(near, near))
-    _, vectors = np.linalg.eigh(walls.T @ walls + pull)
+    _, vectors = np.linalg.eigh(walls.T @ walls + _pull(near))
     up = vectors[:, 0] if vectors[:, 0] @ near >= 0 else -vectors[:, 0]
     return up if up[2] >= math.cos(math.radians(SEARCH_DEG)) else None
+
+
+def _pull(near: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``near`` counted as :data:`NEAR_WEIGHT` normals perpendicular to the up sought: it holds the
+    tilt that walls facing one way leave free, and is nothing against walls facing two ways."""
+    return NEAR_WEIGHT * (np.eye(3) - np.outer(near, near))
