@@ -78,6 +78,7 @@ def walls_up(cloud: NDArray[np.float32], voxel: float) -> WallsUp | None:
     spread = axes.T @ axes / len(walls)  # trace 1: all of it across one axis for walls facing one way
     residual = float(np.mean((walls @ up) ** 2))
     variance = residual * CORRELATED_NORMALS / len(walls) + math.radians(FLOOR_DEG) ** 2
+    # x2: walls facing two ways put half the spread on each axis, 1 / variance each
     return WallsUp(up, 2.0 * spread / variance, walls.T @ walls + _pull(up))
 
 
