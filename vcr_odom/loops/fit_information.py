@@ -15,34 +15,29 @@ EFFECTIVE_POINTS = 50.0
 all of them would make a loop ~100x more certain than the odometry it corrects."""
 
 
-def loop_information(
-    source: o3d.geometry.PointCloud,
-    target: o3d.geometry.PointCloud,
-    transform: Transform,
-    rmse: float,
-    distance: float,
-) -> NDArray[np.float64]:
-    """The loop edge's information (open3d order: rotation, then translation): the ICP Hessian of the
-    fit's geometry at correspondence ``distance``, scaled to :data:`EFFECTIVE_POINTS` points of the
-    fit's own noise."""
-    hessian = o3d.pipelines.registration.get_information_matrix_from_point_clouds(
-        source, target, distance, transform
-    )
-    count = max(float(hessian[5, 5]), 1.0)  # the translation block's diagonal counts correspondences
-    noise = max(float(rmse), 0.05)
-    return np.asarray(hessian) * (EFFECTIVE_POINTS / count) / noise**2
-
-
-def weakest_translation(
+def fit_hessian(
     source: o3d.geometry.PointCloud, target: o3d.geometry.PointCloud, transform: Transform, distance: float
 ) -> NDArray[np.float64]:
-    """The unit translation the fit constrains least (the translation block of the ICP Hessian with
-    rotation eliminated: its eigenvector of the smallest eigenvalue), in the target frame."""
-    hessian = np.asarray(
+    """The fit's ICP Hessian (open3d order: rotation, then translation) at correspondence ``distance``:
+    what both the loop's information and the probe's direction are read from."""
+    return np.asarray(
         o3d.pipelines.registration.get_information_matrix_from_point_clouds(
             source, target, distance, transform
         )
     )
+
+
+def loop_information(hessian: NDArray[np.float64], rmse: float) -> NDArray[np.float64]:
+    """The loop edge's information: the fit's :func:`fit_hessian` scaled to :data:`EFFECTIVE_POINTS`
+    points of the fit's own noise."""
+    count = max(float(hessian[5, 5]), 1.0)  # the translation block's diagonal counts correspondences
+    noise = max(float(rmse), 0.05)
+    return hessian * (EFFECTIVE_POINTS / count) / noise**2
+
+
+def weakest_translation(hessian: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The unit translation the fit constrains least (the translation block of its :func:`fit_hessian`
+    with rotation eliminated: its eigenvector of the smallest eigenvalue), in the target frame."""
     rotation, cross, translation = hessian[:3, :3], hessian[:3, 3:], hessian[3:, 3:]
     reduced = translation - cross.T @ np.linalg.pinv(rotation) @ cross
     _, vectors = np.linalg.eigh(reduced)

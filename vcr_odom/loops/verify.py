@@ -33,7 +33,7 @@ from vcr_odom.geometry import Transform, invert, make_transform, motion_differen
 from vcr_odom.loops.candidates import LoopCandidate
 from vcr_odom.loops.corroboration import corroborated
 from vcr_odom.loops.drift import DriftModel
-from vcr_odom.loops.fit_information import loop_information, weakest_share, weakest_translation
+from vcr_odom.loops.fit_information import fit_hessian, loop_information, weakest_share, weakest_translation
 from vcr_odom.loops.nodes import (
     CLOUD_VOXEL_M,
     NARROW_FIELD_COVERAGE,
@@ -98,11 +98,10 @@ other arm, not a second answer: it does not make the place ambiguous. One shifte
 does (a walk whose odometry failed, synthetic 884: the fit within the bound 7.8 m off the truth at
 overlap 0.61, the other start's 0.72)."""
 BENT_SUBMAP_DEG = 3.0
-"""A submap fit whose submaps may be bent more than this (a loop this far off in heading is false) is
-accepted only where the source's own scan confirms it (:data:`OWN_SCAN_FITNESS`). A handheld walk's
-submaps turn 280-700 deg along their 30-60 m (looks about, corners: 6-14 deg at the drift model's 2 %),
-and two of the three walk submap fits the own scan could not confirm were false (956, 950: 12.5 m,
-11.8 deg); a car crossing's turn 6-16 deg (0.3 deg), and its own scans overlap under 0.3 on right fits."""
+"""A submap fit whose submaps may be bent more than this (a loop this far off in heading is false) stands
+only where the source's own scan confirms it (:data:`OWN_SCAN_FITNESS`). Walk submaps turn 280-700 deg
+(6-14 deg at the drift model's 2 %): two of the three walk fits the own scan could not confirm were
+false (956, 950); car crossings' turn 6-16 deg, and their own scans overlap under 0.3 on right fits."""
 OWN_SCAN_FITNESS = 0.3
 """An accepted submap fit is polished once more with the source node's own cloud on the target submap,
 and that fit is the loop's where this share of the cloud overlaps (and it stays within the drift bound).
@@ -264,10 +263,12 @@ class LoopVerifier:
             decision.scores["weakest_share"] = round(weakest_share(target_cloud, fit), 4)
         min_overlap = MIN_FITNESS_NARROW if narrow else MIN_FITNESS
         decision.check, decision.reason = self._judge(decision, fit, other, apart_deg, scale, min_overlap)
-        if not decision.check:
+        distance = POLISH_STAGES[-1][0] * scale
+        if not decision.check:  # an accepted loop passed here: its information reads the same Hessian
+            hessian = fit_hessian(source_cloud, target_cloud, decision.measured, distance)
             returns_m = (SUBMAP_PROBE_RETURN_M if submaps else PROBE_RETURN_M) * scale
             decision.check, decision.reason = self._probe(
-                decision, source_cloud, target_cloud, fit, scale, returns_m
+                decision, source_cloud, target_cloud, fit, scale, returns_m, hessian
             )
         if not decision.check and submaps:
             turned = max(turned_along(nodes, key[1] or (key[0],)) for key in (source_key, target_key))
@@ -279,9 +280,9 @@ class LoopVerifier:
         if decision.accepted and not submaps:
             decision.corroborated = corroborated(decision.scores, PROBE_RETURN_M * scale)
         if decision.accepted:  # the submaps' geometry, also where the source's own cloud measured the fit
-            decision.information = loop_information(
-                source_cloud, target_cloud, decision.measured, fit.inlier_rmse, POLISH_STAGES[-1][0] * scale
-            )
+            if decision.scores.get("own_scan"):  # that fit replaced the one the probe measured
+                hessian = fit_hessian(source_cloud, target_cloud, decision.measured, distance)
+            decision.information = loop_information(hessian, fit.inlier_rmse)
         return decision
 
     def _on_own_scan(
@@ -370,13 +371,13 @@ class LoopVerifier:
         fit: Any,
         scale: float,
         returns_m: float,
+        hessian: NDArray[np.float64],
     ) -> tuple[str, str]:
-        """Starts pushed :data:`PROBE_M` both ways along the fit's weakest translation must come back
-        within ``returns_m``:
-        along a street seen by a narrow field of view, ICP slides as far as it is pushed, and a loop
-        there would pin the map at a place the scans cannot tell apart."""
+        """Starts pushed :data:`PROBE_M` both ways along the fit's weakest translation (of its ICP
+        ``hessian``) must come back within ``returns_m``: along a street seen by a narrow field of view,
+        ICP slides as far as pushed, and a loop there would pin the map where the scans tell no place."""
         measured = np.asarray(decision.measured)
-        direction = weakest_translation(source, target, measured, POLISH_STAGES[-1][0] * scale)
+        direction = weakest_translation(hessian)
         worst = 0.0
         for sign in (1.0, -1.0):
             start = measured.copy()
