@@ -104,7 +104,7 @@ def test_a_loop_corrects_the_edge_whose_heading_was_weakly_held(monkeypatch) -> 
     even = optimise(nodes, loops)
     weak = np.ones(len(nodes) - 1)
     weak[12] = MAX_SIGMA_FACTOR
-    monkeypatch.setattr(graph, "heading_sigma_factors", lambda _: weak)
+    monkeypatch.setattr(graph, "heading_sigma_factors", lambda *_: weak)
     located = optimise(nodes, loops)
     assert all(located.kept)
     assert _error(located, truth) < _error(even, truth) / 2

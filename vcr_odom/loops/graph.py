@@ -55,7 +55,7 @@ from vcr_odom.loops.cycles import MIN_CYCLES, OdometryScale, cycle_outliers, loo
 from vcr_odom.loops.drift import DriftModel
 from vcr_odom.loops.edges import GraphEdge
 from vcr_odom.loops.heading_support import heading_sigma_factors
-from vcr_odom.loops.nodes import Node
+from vcr_odom.loops.nodes import Node, NodeNormals
 from vcr_odom.loops.up_priors import ATTITUDE_SIGMA_DEG, UpPriors, up_priors
 
 CAUCHY_SCALE = 3.0
@@ -129,17 +129,20 @@ def optimise(
     drift: DriftModel | None = None,
     attitude_sigma_deg: float = ATTITUDE_SIGMA_DEG,
     fit_factors: NDArray[np.float64] | None = None,
+    normals: NodeNormals | None = None,
 ) -> GraphResult:
     """Node poses after optimisation; without loops, the odometry's, untouched.
     ``attitude_sigma_deg``: the up directions' weight (0 leaves them out); ``fit_factors``: per
     odometry edge, a factor on both its sigmas in the final solve, where the odometry fitted poorly
-    (:func:`~vcr_odom.loops.odometry_doubts.fit_sigma_factors`; None: all 1)."""
+    (:func:`~vcr_odom.loops.odometry_doubts.fit_sigma_factors`; None: all 1); ``normals``: the nodes'
+    normals where the loop phase already holds them."""
     drift = drift or DriftModel()
     odometry = np.stack([node.pose for node in nodes])
     frames = np.diff([node.position for node in nodes]).astype(int).tolist()
     if not loops:
         return GraphResult(odometry.copy(), [], [])
-    up = up_priors(nodes, attitude_sigma_deg)
+    normals = NodeNormals(nodes) if normals is None else normals
+    up = up_priors(nodes, attitude_sigma_deg, normals)
     sigmas = drift.chain_sigmas(odometry, frames)
     cycles = loop_cycles(nodes, loops, sigmas)
     scale = odometry_scale(cycles)
@@ -163,7 +166,7 @@ def optimise(
         w * (LOOP_SHARE if isinstance(edge, LoopEdge) else 1.0) if k else 0.0
         for w, k, edge in zip(weights, kept, edges, strict=True)
     ]
-    heading_factors = heading_sigma_factors(nodes)
+    heading_factors = heading_sigma_factors(nodes, normals)
     fitted = np.ones(len(sigmas[0])) if fit_factors is None else np.asarray(fit_factors, dtype=np.float64)
     final_sigmas = (sigmas[0] * fitted, sigmas[1] * heading_factors * fitted)
     poses = _solve(odometry, final_sigmas, edges, final)

@@ -16,14 +16,13 @@ Given each edge's true error as its sigma (a one-off test), 881's map would end 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from itertools import pairwise
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from vcr_odom.geometry import invert
-from vcr_odom.loops.nodes import Node, normal_cloud
+from vcr_odom.loops.nodes import Node, NodeNormals, normal_cloud
 
 MAX_SIGMA_FACTOR = 10.0
 """The most an edge's heading sigma is raised: an edge whose clouds share nothing would otherwise free
@@ -35,12 +34,14 @@ CORRESPONDENCE_VOXELS = 2.0
 at the odometry's relative pose."""
 
 
-def rotation_information(source: Node, target: Node) -> float:
+def rotation_information(
+    source: Node, target: Node, target_normals: NDArray[np.float64] | None = None
+) -> float:
     """The information per correspondence about the weakest rotation axis when ``source``'s cloud is
     fitted point-to-plane onto ``target``'s at the odometry's relative pose, translation left free
     (the rotation block's Schur complement): 0 where the clouds share under
     :data:`MIN_CORRESPONDENCES` points. open3d's information matrix is point-to-point, blind to a
-    wall that lets a cloud turn."""
+    wall that lets a cloud turn. ``target_normals``: ``target``'s, where already estimated."""
     relative = invert(target.pose) @ source.pose
     points = source.cloud.astype(np.float64) @ relative[:3, :3].T + relative[:3, 3]
     distances, nearest = cKDTree(target.cloud).query(
@@ -49,7 +50,9 @@ def rotation_information(source: Node, target: Node) -> float:
     paired = np.isfinite(distances)
     if paired.sum() < MIN_CORRESPONDENCES:
         return 0.0
-    normals = np.asarray(normal_cloud(target.cloud, target.cloud_voxel).normals)[nearest[paired]]
+    if target_normals is None:
+        target_normals = np.asarray(normal_cloud(target.cloud, target.cloud_voxel).normals)
+    normals = target_normals[nearest[paired]]
     jacobian = np.hstack([np.cross(points[paired], normals), normals])
     hessian = jacobian.T @ jacobian / paired.sum()
     rotation, cross, translation = hessian[:3, :3], hessian[:3, 3:], hessian[3:, 3:]
@@ -57,13 +60,15 @@ def rotation_information(source: Node, target: Node) -> float:
     return float(np.linalg.eigvalsh(reduced)[0])
 
 
-def heading_sigma_factors(nodes: Sequence[Node]) -> NDArray[np.float64]:
+def heading_sigma_factors(nodes: Sequence[Node], normals: NodeNormals | None = None) -> NDArray[np.float64]:
     """Per edge of the node chain (one fewer than the nodes), the factor on its heading sigma:
     ``sqrt(median / own)`` of :func:`rotation_information`, from 1 (as well held as the run's typical
     edge, or better) to :data:`MAX_SIGMA_FACTOR`. Relative to the run's median, so that the drift
-    model's sigmas stay what they were tuned as for a typical edge of any sensor."""
+    model's sigmas stay what they were tuned as for a typical edge of any sensor. ``normals``: the
+    nodes' normals where the loop phase already holds them."""
+    normals = NodeNormals(nodes) if normals is None else normals
     information = np.array(
-        [rotation_information(later, earlier) for earlier, later in pairwise(nodes)],
+        [rotation_information(nodes[k + 1], nodes[k], normals.normals(k)) for k in range(len(nodes) - 1)],
         dtype=np.float64,
     )
     if len(information) == 0:

@@ -36,7 +36,7 @@ from vcr_odom.loops.candidates import (
 )
 from vcr_odom.loops.drift import DriftModel
 from vcr_odom.loops.graph import LoopEdge, correct_frames, factor_summary, optimise
-from vcr_odom.loops.nodes import NODE_SPACING_DEG, NODE_SPACING_M, Node, NodeRecorder
+from vcr_odom.loops.nodes import NODE_SPACING_DEG, NODE_SPACING_M, Node, NodeNormals, NodeRecorder
 from vcr_odom.loops.odometry_doubts import OdometryDoubts, fit_sigma_factors
 from vcr_odom.loops.up_priors import ATTITUDE_SIGMA_DEG
 from vcr_odom.loops.verify import CHECKS, LoopDecision, LoopVerifier
@@ -346,11 +346,12 @@ def close_loops(
     )
     started = time.perf_counter()
     decisions: list[LoopDecision] = []
+    normals = NodeNormals(nodes)  # the verification's and the graph's, estimated once per node
     if settings.loops:
         candidates = find_candidates(
             nodes, drift, settings.revisit_radius, settings.min_loop_path, settings.attempt_spacing
         )
-        verifier = LoopVerifier(network, drift, doubts.flagged_frames)
+        verifier = LoopVerifier(network, drift, doubts.flagged_frames, normals)
         with phase("loop candidates", len(candidates)) as advance:
             for candidate in candidates:
                 decisions.append(verifier.verify(candidate, nodes))
@@ -365,7 +366,7 @@ def close_loops(
     ]
     attitude_deg = ATTITUDE_SIGMA_DEG if settings.ground_up else 0.0
     fit_factors = fit_sigma_factors(nodes, doubts.fits) if edges else None  # no loop: no graph to weigh
-    graph = optimise(nodes, edges, drift, attitude_deg, fit_factors)
+    graph = optimise(nodes, edges, drift, attitude_deg, fit_factors, normals)
     for k, (decision, kept, weight) in enumerate(
         zip(_accepted(decisions), graph.kept, graph.weights, strict=True)
     ):

@@ -22,7 +22,7 @@ from scipy.spatial.transform import Rotation
 
 from vcr_odom.geometry import invert
 from vcr_odom.loops.edges import GraphEdge
-from vcr_odom.loops.nodes import Node
+from vcr_odom.loops.nodes import Node, NodeNormals
 from vcr_odom.loops.walls import WallsUp, walls_up
 
 ATTITUDE_SIGMA_DEG = 2.0
@@ -87,12 +87,20 @@ class UpPriors:
         }
 
 
-def up_priors(nodes: Sequence[Node], sigma_deg: float = ATTITUDE_SIGMA_DEG) -> UpPriors:
+def up_priors(
+    nodes: Sequence[Node], sigma_deg: float = ATTITUDE_SIGMA_DEG, normals: NodeNormals | None = None
+) -> UpPriors:
     """The walls' priors where at least :data:`REFERENCE_NODES` nodes saw walls, otherwise the
-    ground's; none where ``sigma_deg`` is 0."""
+    ground's; none where ``sigma_deg`` is 0. ``normals``: the nodes' normals where the loop phase
+    already holds them."""
     if sigma_deg <= 0:
         return UpPriors([], None, 0)
-    walls = [(k, found) for k, node in enumerate(nodes) if (found := walls_up(node.cloud, node.cloud_voxel))]
+    normals = NodeNormals(nodes) if normals is None else normals
+    walls = [
+        (k, found)
+        for k, node in enumerate(nodes)
+        if (found := walls_up(node.cloud, node.cloud_voxel, normals.normals(k)))
+    ]
     if len(walls) >= REFERENCE_NODES:
         return _walls_priors(nodes, walls)
     return _ground_priors(nodes, sigma_deg)

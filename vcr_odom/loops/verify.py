@@ -21,7 +21,6 @@ from __future__ import annotations
 import math
 import warnings
 from collections.abc import Iterable
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -32,12 +31,14 @@ from vcr_odom.errors import DataWarning
 from vcr_odom.geometry import Transform, invert, make_transform, motion_difference, rotation_angle
 from vcr_odom.loops.candidates import LoopCandidate
 from vcr_odom.loops.corroboration import corroborated
+from vcr_odom.loops.decision import LoopDecision
 from vcr_odom.loops.drift import DriftModel
 from vcr_odom.loops.fit_information import fit_hessian, loop_information, weakest_share, weakest_translation
 from vcr_odom.loops.nodes import (
     CLOUD_VOXEL_M,
     NARROW_FIELD_COVERAGE,
     Node,
+    NodeNormals,
     azimuth_coverage,
     normal_cloud,
     submap_cloud,
@@ -136,43 +137,6 @@ place, or odometry that drifts more than the bound allows (``map`` says how many
 widen it)."""
 
 
-@dataclass
-class LoopDecision:
-    """What became of a candidate, as ``loops.json`` lists it."""
-
-    candidate: LoopCandidate
-    source_frame: int
-    target_frame: int
-    accepted: bool = False
-    reason: str = ""
-    check: str = ""
-    """The check it failed (one of :data:`CHECKS`; empty while accepted)."""
-    measured: Transform | None = None
-    information: NDArray[np.float64] | None = None
-    scores: dict[str, Any] = field(default_factory=dict)
-    corroborated: bool = False
-    """Its two starts agreed (:mod:`~vcr_odom.loops.corroboration`): the pose graph's trust."""
-
-    def to_dict(self) -> dict[str, Any]:
-        candidate = self.candidate
-        return {
-            "source_node": candidate.source,
-            "target_node": candidate.target,
-            "source_frame": self.source_frame,
-            "target_frame": self.target_frame,
-            "path_between_m": round(candidate.path_m, 3),
-            "frames_between": candidate.frames,
-            "odometry_distance_m": round(candidate.distance_m, 3),
-            "accepted": self.accepted,
-            "reason": self.reason,
-            "failed_check": self.check or None,
-            "corroborated": self.corroborated,
-            **self.scores,
-            "odometry_T_target_source": candidate.prior.tolist(),
-            "measured_T_target_source": None if self.measured is None else self.measured.tolist(),
-        }
-
-
 class LoopVerifier:
     """Registers and judges candidates; keeps each node's encoding and cloud for the next candidate."""
 
@@ -181,9 +145,12 @@ class LoopVerifier:
         network: VcrRegistrar,
         drift: DriftModel | None = None,
         flagged_frames: Iterable[int] = (),
+        normals: NodeNormals | None = None,
     ) -> None:
         """``flagged_frames``: the frames whose motion the odometry replaced as implausible
-        (``OdometryRun.flagged_frames``); none where the odometry does not say (a benchmark's drift)."""
+        (``OdometryRun.flagged_frames``); none where the odometry does not say (a benchmark's drift).
+        ``normals``: the nodes' normals, shared with the pose graph (made here for other nodes)."""
+        self.normals = normals or NodeNormals([])
         self.network = network
         self.drift = drift or DriftModel()
         self.flagged_frames = np.sort(np.fromiter(flagged_frames, dtype=np.int64))
@@ -193,6 +160,8 @@ class LoopVerifier:
 
     def verify(self, candidate: LoopCandidate, nodes: list[Node]) -> LoopDecision:
         source, target = nodes[candidate.source], nodes[candidate.target]
+        if self.normals.nodes is not nodes:
+            self.normals = NodeNormals(nodes)
         decision = LoopDecision(candidate, source.frame_index, target.frame_index)
         if min(len(source.cloud), len(target.cloud)) < MIN_CLOUD_POINTS:  # an empty or near-empty scan
             decision.check = "points"
@@ -224,7 +193,8 @@ class LoopVerifier:
         turned = (self._network_points(source_points) @ turn[:3, :3].T).astype(np.float32)
         (source_frame,) = self.network.encode_inputs([turned])
         network = self.network.register(source_frame, target_frame)
-        source_cloud = normal_cloud(source_points, source.cloud_voxel)
+        own_cloud = self.normals.cloud(candidate.source)
+        source_cloud = normal_cloud(source_points, source.cloud_voxel) if submaps else own_cloud
         starts = {"network": network.transform @ turn, "odometry": candidate.prior}
         fits = {name: _polish(source_cloud, target_cloud, start, scale) for name, start in starts.items()}
         started_m, started_deg = motion_difference(starts["network"], starts["odometry"])
@@ -274,7 +244,7 @@ class LoopVerifier:
             turned = max(turned_along(nodes, key[1] or (key[0],)) for key in (source_key, target_key))
             bend_deg = self.drift.rotation_per_turned * turned  # the drift model's heading share
             decision.check, decision.reason = self._on_own_scan(
-                decision, source, target_cloud, scale, bend_deg
+                decision, own_cloud, target_cloud, scale, bend_deg
             )
         decision.accepted = not decision.check
         if decision.accepted and not submaps:
@@ -288,19 +258,18 @@ class LoopVerifier:
     def _on_own_scan(
         self,
         decision: LoopDecision,
-        source: Node,
+        cloud: o3d.geometry.PointCloud,
         target: o3d.geometry.PointCloud,
         scale: float,
         bend_deg: float,
     ) -> tuple[str, str]:
-        """The source node's own cloud polished on the target submap from the submap fit: the source's
+        """The source node's own ``cloud`` polished on the target submap from the submap fit: the source's
         submap was placed by the odometry round it and carries its heading error into the fit. Where
         the own cloud overlaps (:data:`OWN_SCAN_FITNESS`), its fit is the loop's (``decision.measured``
         and its correction are set) if it stays within the drift bound; if it slides beyond, the scan
         cannot tell the submap fit's heading, and the check failed is returned as by :meth:`_judge`.
         Where it does not overlap, the submap fit stands, unless the submaps may be bent more than
         :data:`BENT_SUBMAP_DEG` (``bend_deg``): then nothing measured the fit's heading but the bend."""
-        cloud = normal_cloud(source.cloud, source.cloud_voxel)
         own = _polish(cloud, target, decision.measured, scale)
         overlaps = own.fitness >= OWN_SCAN_FITNESS
         within = self._within_bound(decision.candidate, own.transformation)
@@ -408,7 +377,9 @@ class LoopVerifier:
         if key not in self._targets:
             cloud = self._cloud(key, nodes)
             (frame,) = self.network.encode_inputs([self._network_points(cloud)])
-            self._targets[key] = (frame, normal_cloud(cloud, nodes[key[0]].cloud_voxel))
+            own = key[1] is None  # a node's own cloud: its normals are the loop phase's
+            normals = self.normals.cloud(key[0]) if own else normal_cloud(cloud, nodes[key[0]].cloud_voxel)
+            self._targets[key] = (frame, normals)
         return self._targets[key]
 
     def _cloud(self, key: _CloudKey, nodes: list[Node]) -> NDArray[np.float32]:

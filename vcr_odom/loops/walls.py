@@ -57,11 +57,15 @@ class WallsUp:
     scatter: NDArray[np.float64]
 
 
-def walls_up(cloud: NDArray[np.float32], voxel: float) -> WallsUp | None:
-    """The up of the walls in a node's cloud, or None where too few normals are walls'."""
+def walls_up(
+    cloud: NDArray[np.float32], voxel: float, normals: NDArray[np.float64] | None = None
+) -> WallsUp | None:
+    """The up of the walls in a node's cloud, or None where too few normals are walls'. ``normals``:
+    the cloud's, where already estimated (:class:`~vcr_odom.loops.nodes.NodeNormals`)."""
     if len(cloud) < MIN_NORMALS:
         return None
-    normals = np.asarray(normal_cloud(cloud, voxel).normals)
+    if normals is None:
+        normals = np.asarray(normal_cloud(cloud, voxel).normals)
     up = np.array([0.0, 0.0, 1.0])
     for band in (SEARCH_DEG, BAND_DEG, BAND_DEG):
         up = _least_tilted(_within(normals, up, band), up)
