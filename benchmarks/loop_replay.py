@@ -13,8 +13,10 @@ frame's pose, what the odometry said of each frame (flagged frames, fits), and t
 replay runs ``close_loops`` on it with the code of this checkout and scores it as
 ``benchmarks/loop_closure.py`` does (the same function): SE(3)-aligned ATE of the odometry and the map,
 revisit passages closed, loops kept and the false ones (more than 1 m / 3 deg off the truth, each
-listed with its frames), and how far the map moved any frame. A change to the odometry or to how nodes
-are recorded needs a new recording.
+listed with its frames), how far the map moved any frame, and the seconds of the candidates'
+verification and of the graph (``loop_seconds``: compare a change's cost in one process on a quiet
+machine; ``OMP_NUM_THREADS=1`` keeps two replays side by side from slowing each other many times
+over). A change to the odometry or to how nodes are recorded needs a new recording.
 
 Recordings are Python pickles of this checkout's classes: a cache for the machine that made them,
 not a file to exchange (load only recordings you made; a recording from other code may not load).
@@ -38,7 +40,7 @@ from vcr_odom.data.selection import FrameSelection
 from vcr_odom.io import replacing
 from vcr_odom.loops.nodes import NodeRecorder
 from vcr_odom.loops.odometry_doubts import OdometryDoubts
-from vcr_odom.loops.pipeline import LoopOptions, MapSettings, close_loops, loop_network, loops_json
+from vcr_odom.loops.pipeline import LoopOptions, MapSettings, Phases, close_loops, loop_network, loops_json
 from vcr_odom.odometry.loop import run_odometry
 from vcr_odom.odometry.outputs import ground_truth_for
 from vcr_odom.odometry.run import method_for
@@ -111,12 +113,19 @@ def replay_one(path: Path) -> dict[str, Any]:
     )
     doubts = OdometryDoubts.of_run(recording["frame_indices"], recording["per_frame_info"])
     options = LoopOptions(**recording["loop_options"])
-    closed = close_loops(options, network, recording["nodes"], recording["poses"], None, doubts)
+    phases = Phases(None)
+    closed = close_loops(options, network, recording["nodes"], recording["poses"], phases, doubts)
     loops = loops_json(closed.decisions, recording["nodes"])
     row = score_loops(
         gt, recording["frame_indices"], loops, recording["poses"], closed.poses, options.min_loop_path
     )
-    return {"recording": str(path), "sequence": folder.name, "recorded_at": recording["commit"], **row}
+    return {
+        "recording": str(path),
+        "sequence": folder.name,
+        "recorded_at": recording["commit"],
+        **row,
+        "loop_seconds": phases.seconds,
+    }
 
 
 def replay(args: argparse.Namespace) -> None:
@@ -133,6 +142,7 @@ def replay(args: argparse.Namespace) -> None:
         table.add_column(header)
     table.add_column("false loops: frames, m / deg off")
     table.add_column("max change [m]")
+    table.add_column("loops / graph [s]")
     for row in rows:
         false = "; ".join(
             f"{a}->{b} {f['error_m']:.2f} / {f['error_deg']:.1f}"
@@ -148,6 +158,7 @@ def replay(args: argparse.Namespace) -> None:
             f"{row['accepted']} ({row['false_closures']})",
             false or "-",
             f"{row['max_change_m']:.3f}",
+            f"{row['loop_seconds']['loops']:.1f} / {row['loop_seconds']['graph']:.1f}",
         )
     Console().print(table)
     if args.json:

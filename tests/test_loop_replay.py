@@ -50,6 +50,7 @@ def test_a_replay_scores_what_map_made_of_the_same_frames(small_synthetic_root: 
     assert row["candidates"] == len(loops["candidates"]) and row["accepted"] == metrics["loops"]["accepted"]
     assert abs(row["map_ate_m"] - metrics["ate_rpe"]["ate_se3_trans_rmse_m"]) < 1e-9
     assert abs(row["odometry_ate_m"] - metrics["odometry"]["ate_rpe"]["ate_se3_trans_rmse_m"]) < 1e-9
+    assert set(row["loop_seconds"]) == {"loops", "graph"} and min(row["loop_seconds"].values()) >= 0
 
 
 def test_a_file_that_is_not_a_recording_is_refused_by_name(tmp_path: Path) -> None:
