@@ -535,7 +535,8 @@ def test_a_dropped_loop_is_told_what_it_disagreed_with() -> None:
 
 def test_the_loop_phase_estimates_each_nodes_normals_once(sample_nodes, monkeypatch) -> None:
     """The verification, the heading support and the walls' up all read a node's normals: estimated
-    once and shared (three times was ~20 % of drive 802's loop phase), the same a fresh estimate gives."""
+    once and shared (up to three times was 10-15 % of drive 802's loop phase), the same a fresh
+    estimate gives."""
     from collections import Counter
 
     from vcr_odom.loops import heading_support, verify, walls

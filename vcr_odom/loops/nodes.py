@@ -79,8 +79,9 @@ def normal_cloud(points: NDArray[np.float32], voxel: float) -> o3d.geometry.Poin
 class NodeNormals:
     """Each node's cloud with its normals (:func:`normal_cloud`), estimated once for the loop phase:
     the verification, the heading support and the walls' up all read the same node's normals, and on
-    drive 802 estimating them three times was ~15 % of the loop phase on one thread. Held for the loop
-    phase only: as much memory again as the nodes' clouds, twice (float64)."""
+    drive 802 estimating them up to three times was 10-15 % of the loop phase on one thread. Held for
+    the loop phase only (float64, so every fit is the one a fresh estimate gives): twice the memory of
+    the nodes' float32 clouds."""
 
     def __init__(self, nodes: Sequence[Node]) -> None:
         self.nodes = nodes

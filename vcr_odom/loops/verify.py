@@ -150,7 +150,7 @@ class LoopVerifier:
         """``flagged_frames``: the frames whose motion the odometry replaced as implausible
         (``OdometryRun.flagged_frames``); none where the odometry does not say (a benchmark's drift).
         ``normals``: the nodes' normals, shared with the pose graph (made here for other nodes)."""
-        self.normals = normals or NodeNormals([])
+        self.normals = NodeNormals([]) if normals is None else normals
         self.network = network
         self.drift = drift or DriftModel()
         self.flagged_frames = np.sort(np.fromiter(flagged_frames, dtype=np.int64))
