@@ -193,8 +193,10 @@ class LoopVerifier:
         turned = (self._network_points(source_points) @ turn[:3, :3].T).astype(np.float32)
         (source_frame,) = self.network.encode_inputs([turned])
         network = self.network.register(source_frame, target_frame)
-        own_cloud = self.normals.cloud(candidate.source)
-        source_cloud = normal_cloud(source_points, source.cloud_voxel) if submaps else own_cloud
+        if submaps:
+            source_cloud = normal_cloud(source_points, source.cloud_voxel)
+        else:  # the node's own cloud: its normals are the loop phase's
+            source_cloud = self.normals.cloud(candidate.source)
         starts = {"network": network.transform @ turn, "odometry": candidate.prior}
         fits = {name: _polish(source_cloud, target_cloud, start, scale) for name, start in starts.items()}
         started_m, started_deg = motion_difference(starts["network"], starts["odometry"])
@@ -244,7 +246,7 @@ class LoopVerifier:
             turned = max(turned_along(nodes, key[1] or (key[0],)) for key in (source_key, target_key))
             bend_deg = self.drift.rotation_per_turned * turned  # the drift model's heading share
             decision.check, decision.reason = self._on_own_scan(
-                decision, own_cloud, target_cloud, scale, bend_deg
+                decision, self.normals.cloud(candidate.source), target_cloud, scale, bend_deg
             )
         decision.accepted = not decision.check
         if decision.accepted and not submaps:
