@@ -83,6 +83,28 @@ def test_a_crossing_is_attempted_at_the_node_nearest_the_earlier_street() -> Non
     assert (gaps >= 6.0).all(), "attempts stay one every 6 m of path"
 
 
+def test_a_long_passage_is_attempted_at_most_twenty_times_and_a_short_one_every_6_m() -> None:
+    """A return along the same street, a lane apart: every node of the way back revisits, and a
+    registration every 6 m would be ~50 of them on 300 m; 20 spread over the passage pin it."""
+
+    def out_and_back(length_m: float) -> list[Node]:
+        count = int(length_m / 3.0)
+        out = [make_transform(np.eye(3), [3.0 * k, 0, 0]) for k in range(count + 1)]
+        back = [make_transform(np.eye(3), [3.0 * k, 3.5, 0]) for k in range(count, -1, -1)]
+        return _nodes(out + back)
+
+    for length_m, expected_spacing in ((300.0, 13.5), (90.0, 6.0)):
+        nodes = out_and_back(length_m)
+        candidates = find_candidates(nodes)
+        path = sorted(nodes[c.source].path_m for c in candidates)
+        passage_m = path[-1] - path[0]
+        assert passage_m > 0.8 * length_m - 30, "the whole way back is attempted, end to end"
+        assert np.diff(path).min() >= expected_spacing - 1e-9
+        assert np.diff(path).max() <= 2 * expected_spacing + 3.0, "no stretch is left unattempted"
+    assert 18 <= len(find_candidates(out_and_back(300.0))) <= 21
+    assert len(find_candidates(out_and_back(300.0), max_passage_attempts=1000)) >= 40
+
+
 def test_a_loop_pulls_a_drifted_circle_back_and_no_loop_changes_nothing() -> None:
     truth, odometry = _circle(60, 40.0, heading_drift_deg_per_node=0.1)
     nodes = _nodes(odometry)

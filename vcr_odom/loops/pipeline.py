@@ -30,6 +30,7 @@ from vcr_odom.geometry import Transform, lidar_to_camera_poses
 from vcr_odom.io import write_kitti_poses, write_tum_trajectory
 from vcr_odom.loops.candidates import (
     ATTEMPT_SPACING_M,
+    MAX_PASSAGE_ATTEMPTS,
     MIN_LOOP_PATH_M,
     REVISIT_RADIUS_M,
     find_candidates,
@@ -72,6 +73,12 @@ class LoopOptions(Settings):
     revisit_radius: float = Field(default=REVISIT_RADIUS_M, gt=0)
     min_loop_path: float = Field(default=MIN_LOOP_PATH_M, gt=0)
     attempt_spacing: float = Field(default=ATTEMPT_SPACING_M, ge=0)
+    passage_attempts: int = Field(
+        default=MAX_PASSAGE_ATTEMPTS,
+        ge=1,
+        description="At most about this many loop attempts along one revisit passage: a passage longer "
+        "than this many times attempt_spacing is attempted every 1/passage_attempts of its length.",
+    )
     max_drift: float = Field(
         default=DriftModel.translation_rate * 100,
         gt=0,
@@ -349,7 +356,12 @@ def close_loops(
     normals = NodeNormals(nodes)  # the verification's and the graph's, estimated once per node
     if settings.loops:
         candidates = find_candidates(
-            nodes, drift, settings.revisit_radius, settings.min_loop_path, settings.attempt_spacing
+            nodes,
+            drift,
+            settings.revisit_radius,
+            settings.min_loop_path,
+            settings.attempt_spacing,
+            settings.passage_attempts,
         )
         verifier = LoopVerifier(network, drift, doubts.flagged_frames, normals)
         with phase("loop candidates", len(candidates)) as advance:
