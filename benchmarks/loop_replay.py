@@ -6,10 +6,12 @@ Not a test: run
     .venv/bin/python benchmarks/loop_replay.py record --sequence WORK/sequences/881 --out rec/881.pkl \
         [--stride K] [--method vcr]
     # after each change under vcr_odom/loops: the loop phase on the recording, scored against the truth
-    .venv/bin/python benchmarks/loop_replay.py replay rec/881.pkl [rec/898.pkl ...] [--json out.json]
+    .venv/bin/python benchmarks/loop_replay.py replay rec/881.pkl [rec/898.pkl ...] [--json out.json] \
+        [--set passage_attempts=1000 ...]
 
 A recording holds what ``map`` hands its loop phase: the nodes (odometry poses, coarse clouds), every
-frame's pose, what the odometry said of each frame (flagged frames, fits), and the loop options. The
+frame's pose, what the odometry said of each frame (flagged frames, fits), and the loop options
+(``--set NAME=VALUE`` replaces one of them, a field of ``LoopOptions``, for the replay). The
 replay runs ``close_loops`` on it with the code of this checkout and scores it as
 ``benchmarks/loop_closure.py`` does (the same function): SE(3)-aligned ATE of the odometry and the map,
 revisit passages closed, loops kept and the false ones (more than 1 m / 3 deg off the truth, each
@@ -37,6 +39,7 @@ from rich.console import Console
 from rich.table import Table
 
 from vcr_odom.data.selection import FrameSelection
+from vcr_odom.errors import ConfigError
 from vcr_odom.io import replacing
 from vcr_odom.loops.nodes import NodeRecorder
 from vcr_odom.loops.odometry_doubts import OdometryDoubts
@@ -97,8 +100,9 @@ def record(args: argparse.Namespace) -> None:
     print(f"{len(run.frame_indices)} frames, {len(recording['nodes'])} nodes -> {args.out}")
 
 
-def replay_one(path: Path) -> dict[str, Any]:
-    """The loop phase on one recording, scored against its sequence's ground truth."""
+def replay_one(path: Path, options_set: dict[str, str] | None = None) -> dict[str, Any]:
+    """The loop phase on one recording, scored against its sequence's ground truth; ``options_set``
+    replaces recorded loop options (``LoopOptions`` field names, values as typed)."""
     with path.open("rb") as handle:
         recording = pickle.load(handle)  # the caller's own recording (see the module doc)
     if not isinstance(recording, dict) or recording.get("format") != FORMAT:
@@ -112,7 +116,7 @@ def replay_one(path: Path) -> dict[str, Any]:
         recording["network"]["weights"], recording["network"]["device"], recording["network"]["vcr_points"]
     )
     doubts = OdometryDoubts.of_run(recording["frame_indices"], recording["per_frame_info"])
-    options = LoopOptions(**recording["loop_options"])
+    options = LoopOptions(**(recording["loop_options"] | (options_set or {})))
     phases = Phases(None)
     closed = close_loops(options, network, recording["nodes"], recording["poses"], phases, doubts)
     loops = loops_json(closed.decisions, recording["nodes"])
@@ -123,13 +127,14 @@ def replay_one(path: Path) -> dict[str, Any]:
         "recording": str(path),
         "sequence": folder.name,
         "recorded_at": recording["commit"],
+        "options_set": options_set or {},
         **row,
         "loop_seconds": phases.seconds,
     }
 
 
 def replay(args: argparse.Namespace) -> None:
-    rows = [replay_one(path) for path in args.recordings]
+    rows = [replay_one(path, args.options_set) for path in args.recordings]
     table = Table(title=f"the loop phase at {_commit()} on recorded odometry")
     for header in (
         "sequence",
@@ -166,6 +171,24 @@ def replay(args: argparse.Namespace) -> None:
             temporary.write_text(json.dumps(rows, indent=1, default=_plain))
 
 
+def loop_options_set(items: list[str], parser: argparse.ArgumentParser) -> dict[str, str]:
+    """``--set`` items as {name: value}, each checked against ``LoopOptions`` now, not after the first
+    recording has replayed."""
+    chosen: dict[str, str] = {}
+    for item in items:
+        name, equals, value = item.partition("=")
+        if not equals or name not in LoopOptions.model_fields:
+            parser.error(
+                f"--set {item}: expected NAME=VALUE with NAME one of {', '.join(LoopOptions.model_fields)}"
+            )
+        try:
+            LoopOptions(**{name: value})
+        except ConfigError as error:
+            parser.error(f"--set {item}: {error}")
+        chosen[name] = value
+    return chosen
+
+
 def _plain(value: Any) -> Any:
     return value.item() if isinstance(value, np.generic) else str(value)
 
@@ -183,7 +206,17 @@ def main() -> None:
     again = commands.add_parser("replay", help="the loop phase of this checkout on recordings")
     again.add_argument("recordings", type=Path, nargs="+")
     again.add_argument("--json", type=Path)
+    again.add_argument(
+        "--set",
+        dest="options_set",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="replace a recorded loop option (a LoopOptions field, e.g. passage_attempts=1000); repeatable",
+    )
     args = parser.parse_args()
+    if args.command == "replay":
+        args.options_set = loop_options_set(args.options_set, parser)
     if args.command == "record":
         record(args)
     else:

@@ -52,6 +52,15 @@ def test_a_replay_scores_what_map_made_of_the_same_frames(small_synthetic_root: 
     assert abs(row["odometry_ate_m"] - metrics["odometry"]["ate_rpe"]["ate_se3_trans_rmse_m"]) < 1e-9
     assert set(row["loop_seconds"]) == {"loops", "graph"} and min(row["loop_seconds"].values()) >= 0
 
+    # --set replaces a recorded option: 8 frames are too short a path for a loop at 30 m, not at 1 m
+    assert row["candidates"] == 0 and row["options_set"] == {}
+    wider = tmp_path / "wider.json"
+    options = ["--set", "min_loop_path=1", "--set", "revisit_radius=50"]
+    replayed = _replay("replay", str(recording), *options, "--json", str(wider))
+    assert replayed.returncode == 0, replayed.stderr
+    (row,) = json.loads(wider.read_text())
+    assert row["candidates"] > 0 and row["options_set"] == {"min_loop_path": "1", "revisit_radius": "50"}
+
 
 def test_a_file_that_is_not_a_recording_is_refused_by_name(tmp_path: Path) -> None:
     other = tmp_path / "other.pkl"
@@ -59,6 +68,22 @@ def test_a_file_that_is_not_a_recording_is_refused_by_name(tmp_path: Path) -> No
     replayed = _replay("replay", str(other))
     assert replayed.returncode != 0
     assert f"{other}: not a recording of format 1" in replayed.stderr
+
+
+@pytest.mark.parametrize(
+    ("item", "says"),
+    [
+        ("passage_atempts=3", "NAME one of node_spacing"),
+        ("passage_attempts", "expected NAME=VALUE"),
+        ("passage_attempts=0", "passage_attempts: Input should be greater than or equal to 1"),
+    ],
+)
+def test_a_loop_option_that_does_not_exist_or_fit_is_refused_by_name(
+    tmp_path: Path, item: str, says: str
+) -> None:
+    replayed = _replay("replay", str(tmp_path / "never_read.pkl"), "--set", item)
+    assert replayed.returncode == 2
+    assert f"--set {item}:" in replayed.stderr and says in replayed.stderr
 
 
 @pytest.mark.slow
