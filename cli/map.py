@@ -74,6 +74,14 @@ FIELDS = MapSettings.model_fields
     help="Metres driven between two visits of a place before they can close a loop.",
 )
 @click.option(
+    "--passage-attempts",
+    type=click.IntRange(min=1),
+    default=FIELDS["passage_attempts"].default,
+    show_default=True,
+    help="At most about this many loops tried along one revisited stretch (one every 6 m on shorter "
+    "ones): more close more of a long revisit where many fits are turned away, at a registration each.",
+)
+@click.option(
     "--max-drift",
     type=click.FloatRange(min=0, min_open=True, max=50),
     default=FIELDS["max_drift"].default,

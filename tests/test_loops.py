@@ -530,6 +530,23 @@ def test_map_rejects_a_drift_bound_that_is_not_positive(
     assert not any(tmp_path.iterdir()), "nothing written for a bad option"
 
 
+def test_map_takes_passage_attempts_from_its_option_and_refuses_zero(
+    small_synthetic_root: Path, tmp_path: Path
+) -> None:
+    args = ["map", "--data-root", str(small_synthetic_root), "--seq", "00", "--frames", "0:3"]
+    refused = CliRunner().invoke(
+        cli, [*args, "--results-dir", str(tmp_path / "no"), "--passage-attempts", "0"]
+    )
+    assert refused.exit_code == 2 and "--passage-attempts" in refused.output, refused.output
+    assert not (tmp_path / "no").exists() or not any((tmp_path / "no").iterdir())
+    result = CliRunner().invoke(
+        cli, [*args, "--results-dir", str(tmp_path / "yes"), "--passage-attempts", "7"]
+    )
+    assert result.exit_code == 0, result.output
+    (folder,) = [p for p in (tmp_path / "yes").iterdir() if p.is_dir() and p.name.startswith("20")]
+    assert json.loads((folder / "config.json").read_text())["config"]["passage_attempts"] == 7
+
+
 def test_metrics_count_candidates_by_the_check_they_failed() -> None:
     """metrics.json's by_outcome and the drift-bound count read the decision's check, in the order tried."""
     from vcr_odom.loops.pipeline import _loop_summary
