@@ -102,3 +102,29 @@ def test_a_noisy_odometry_keeps_its_right_loops_and_drops_a_block_away() -> None
     after = np.mean([apart(result.node_poses, loop.source, loop.target) for loop in right])
     assert after < before / 4  # the two laps pulled together (5.5 -> 0.7 m)
     assert apart(result.node_poses, 75, 25) < 10.0  # not a block (30 m) off; the odometry alone leaves 4 m
+
+
+def test_two_loops_that_agree_outvote_a_corroborated_one_that_slid() -> None:
+    """Three loops, too few cycles to scale the sigmas, so a corroborated loop would keep its full
+    weight; its fit slid 6 m along the street (both its starts slid alike: walk 1111). Its two cycles
+    misclose while the other two loops close theirs: it is dropped before the rounds."""
+    truth, nodes = _noisy_circle(0.5)
+    right = [LoopEdge(j, j - 60, invert(truth[j - 60]) @ truth[j], LOOP_INFORMATION) for j in (62, 64)]
+    slide = make_transform(np.eye(3), [6.0, 0, 0])
+    slid = LoopEdge(66, 6, slide @ invert(truth[6]) @ truth[66], LOOP_INFORMATION, corroborated=True)
+    result = optimise(nodes, [*right, slid])
+    assert result.odometry is not None and result.odometry.cycles == 3
+    assert result.cycle_outliers == {2: (2, 2)}
+    assert result.kept == [True, True, False]
+
+
+def test_two_loops_that_disagree_are_both_kept_by_their_cycle() -> None:
+    """One cycle cannot say which of its two loops is wrong: the cycles drop neither (the graph's
+    rounds weigh them)."""
+    truth, nodes = _noisy_circle(0.5)
+    right = LoopEdge(62, 2, invert(truth[2]) @ truth[62], LOOP_INFORMATION)
+    slide = make_transform(np.eye(3), [6.0, 0, 0])
+    slid = LoopEdge(66, 6, slide @ invert(truth[6]) @ truth[66], LOOP_INFORMATION)
+    cycles = loop_cycles(nodes, [right, slid], _sigmas(nodes))
+    assert len(cycles) == 1 and cycles[0].ratio > 3.0
+    assert optimise(nodes, [right, slid]).cycle_outliers == {}

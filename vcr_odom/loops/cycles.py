@@ -110,17 +110,31 @@ def odometry_scale(cycles: Sequence[Cycle]) -> OdometryScale:
 
 def cycle_outliers(cycles: Sequence[Cycle], scale: float) -> dict[int, tuple[int, int]]:
     """Loops (index -> (misclosed, cycles)) more than half of whose cycles, at least three, misclose
-    beyond :data:`MISCLOSURE_SIGMAS` of the scaled sigmas. Why beside the graph's robust kernel: where
-    the odometry's sigmas are scaled up, the graph can bend the odometry to fit a false loop and the
-    loop's residual stays small; its cycles with the right loops near it still misclose."""
-    counts: dict[int, list[int]] = {}
+    beyond :data:`MISCLOSURE_SIGMAS` of the scaled sigmas, or every one of whose cycles, at least two,
+    misclose with loops that close a cycle with each other: two that agree outvote one. Why beside the
+    graph's robust kernel: where the odometry's sigmas are scaled up, the graph can bend the odometry to
+    fit a false loop and the loop's residual stays small; its cycles with the right loops near it still
+    misclose. Why two against one: where the loops are too few to scale the sigmas, a corroborated loop
+    keeps its full weight in the graph (:mod:`~vcr_odom.loops.graph`), and a fit that slid along a
+    footpath both its starts slid along (walk 1111: 6.5 m off) is corroborated."""
+    limit = MISCLOSURE_SIGMAS * scale
+    partners: dict[int, dict[int, bool]] = {}
     for cycle in cycles:
-        misclosed = int(cycle.ratio > MISCLOSURE_SIGMAS * scale)
-        for loop in (cycle.first, cycle.second):
-            tally = counts.setdefault(loop, [0, 0])
-            tally[0] += misclosed
-            tally[1] += 1
-    return {loop: (bad, total) for loop, (bad, total) in counts.items() if total >= 3 and 2 * bad > total}
+        misclosed = cycle.ratio > limit
+        partners.setdefault(cycle.first, {})[cycle.second] = misclosed
+        partners.setdefault(cycle.second, {})[cycle.first] = misclosed
+    outliers = {}
+    for loop, verdicts in partners.items():
+        bad, total = sum(verdicts.values()), len(verdicts)
+        if (total >= 3 and 2 * bad > total) or (total >= 2 and bad == total and _agree(verdicts, partners)):
+            outliers[loop] = (bad, total)
+    return outliers
+
+
+def _agree(verdicts: dict[int, bool], partners: dict[int, dict[int, bool]]) -> bool:
+    """Whether two of a loop's partners (``verdicts``' keys) close a cycle with each other."""
+    others = list(verdicts)
+    return any(partners[p].get(q) is False for k, p in enumerate(others) for q in others[k + 1 :])
 
 
 def _loop_variances(loop: LoopEdge) -> tuple[float, float]:
