@@ -570,6 +570,9 @@ def test_a_dropped_loop_is_told_what_it_disagreed_with() -> None:
         "dropped: disagrees with the odometry and the 2 other loop(s) (graph weight 0.04)"
     )
     assert dropped_reason((3, 4), 0.0, 5) == "dropped: 3 of its 4 cycles with the loops near it do not close"
+    assert dropped_reason((2, 2), 0.0, 3) == (
+        "dropped: its cycles with the two loops near it do not close, while theirs does"
+    )
 
 
 def test_the_loop_phase_estimates_each_nodes_normals_once(sample_nodes, monkeypatch) -> None:

@@ -406,6 +406,8 @@ def dropped_reason(cycle_outlier: tuple[int, int] | None, weight: float, loops: 
     loop can only disagree with the odometry)."""
     if cycle_outlier is not None:
         misclosed, cycles = cycle_outlier
+        if cycles == 2:  # two loops that agree outvote it (:func:`~vcr_odom.loops.cycles.cycle_outliers`)
+            return "dropped: its cycles with the two loops near it do not close, while theirs does"
         return f"dropped: {misclosed} of its {cycles} cycles with the loops near it do not close"
     others = loops - 1
     against = "the odometry" if others == 0 else f"the odometry and the {others} other loop(s)"
