@@ -146,6 +146,12 @@ def map_command(ctx: click.Context, selection: FrameSelection, **options: object
             f"({settings.max_drift:g} % of the path, {settings.max_heading_drift:g} deg / 100 m): look-alike "
             "places, or an odometry that drifts more (then raise --max-drift / --max-heading-drift)."
         )
+    dropped = sum(d.check == "graph" for d in outcome.decisions)
+    if dropped:
+        console.print(
+            f"{dropped} candidate(s) passed every check but the pose graph dropped them: they disagree "
+            "with the other loops' cycles or with the odometry (loops.json: graph, with the reason)."
+        )
     doubted = sum(d.check == "doubted_submap" for d in outcome.decisions)
     if doubted:
         console.print(

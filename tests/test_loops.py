@@ -407,11 +407,12 @@ def test_map_hands_what_the_odometry_doubted_to_the_loop_phase(
     assert sorted(doubts.fits) == list(range(1, 8)), "each pair's prior fit, from the second frame on"
 
 
-def test_map_says_how_many_candidates_the_drift_bound_and_doubted_submaps_turned_away(
+def test_map_says_how_many_candidates_the_drift_bound_doubted_submaps_and_graph_turned_away(
     small_synthetic_root: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """The console names the two rejections a user can act on or should know of: fits beyond the drift
-    bound (raise the options) and submaps across frames the odometry doubted (its picture is bent)."""
+    """The console names the rejections a user can act on or should know of: fits beyond the drift
+    bound (raise the options), submaps across frames the odometry doubted (its picture is bent) and
+    verified loops the pose graph dropped (why the accepted count is lower than the fits)."""
     import vcr_odom.loops.pipeline as pipeline
     from vcr_odom.loops.verify import LoopDecision
 
@@ -424,6 +425,7 @@ def test_map_says_how_many_candidates_the_drift_bound_and_doubted_submaps_turned
             LoopDecision(candidate, 5, 0, check="drift_bound"),
             LoopDecision(candidate, 6, 0, check="doubted_submap"),
             LoopDecision(candidate, 7, 0, check="doubted_submap"),
+            LoopDecision(candidate, 8, 0, check="graph"),
         ]
         return closed
 
@@ -431,10 +433,11 @@ def test_map_says_how_many_candidates_the_drift_bound_and_doubted_submaps_turned
     result = _map(small_synthetic_root, tmp_path)
     assert result.exit_code == 0, result.output
     output = " ".join(result.output.split())
-    assert "3 loop candidate(s), 0 accepted" in output
+    assert "4 loop candidate(s), 0 accepted" in output
     assert "1 candidate(s) fit but asked the odometry for more than its drift bound" in output
     assert "2 candidate(s) not registered: the odometry replaced implausible motions" in output
     assert "doubted_submap" in output
+    assert "1 candidate(s) passed every check but the pose graph dropped them" in output
 
 
 def test_compare_puts_a_mapped_row_beside_its_odometry(small_synthetic_root: Path, tmp_path: Path) -> None:
