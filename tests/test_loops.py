@@ -236,10 +236,11 @@ def test_a_revisit_is_registered_without_the_odometry_and_accepted(sample_nodes)
     assert decision.to_dict()["corroborated"] is True
 
 
-def test_starts_that_begin_together_corroborate_nothing(sample_nodes) -> None:
+def test_starts_that_begin_together_corroborate_only_a_fit_that_faces_every_way(sample_nodes) -> None:
     """An odometry 0.4 m off: the network's start lands within a metre of it, so their ending in one
-    fit says nothing a single start would not."""
-    from vcr_odom.loops.corroboration import CORROBORATING_STARTS_M
+    fit says nothing a single start would not; the street's surfaces face every way, and that alone
+    corroborates the fit."""
+    from vcr_odom.loops.corroboration import CORROBORATING_STARTS_M, STRONG_SHARE, corroborated
     from vcr_odom.loops.verify import LoopVerifier
     from vcr_odom.registration.vcr import VcrRegistrar
 
@@ -248,7 +249,17 @@ def test_starts_that_begin_together_corroborate_nothing(sample_nodes) -> None:
     decision = LoopVerifier(VcrRegistrar(device="cpu")).verify(_candidate(truth, close, 150.0), nodes)
     assert decision.accepted, decision.reason
     assert decision.scores["starts_before_m"] < CORROBORATING_STARTS_M
-    assert not decision.corroborated
+    assert decision.scores["weakest_share"] >= STRONG_SHARE
+    assert decision.corroborated
+    together = decision.scores | {"weakest_share": 0.04}  # a footpath's: one start could slide along it
+    assert not corroborated(together, 0.5)
+    converged = together | {
+        "starts_before_m": 2.0,
+        "starts_apart_m": 0.0,
+        "other_start_fitness": together["fitness"],
+    }
+    assert corroborated(converged, 0.5)
+    assert not corroborated(converged | {"weakest_share": 0.015}, 0.5)  # both slid along it
 
 
 def test_starts_that_end_apart_on_surfaces_facing_one_way_are_ambiguous(sample_nodes, monkeypatch) -> None:
