@@ -20,7 +20,8 @@ drift bound, and the graph's sigmas (a car's) made its one or two right loops ou
 dropped them (weights 0.02-0.47) as they dropped the false fits (0.00-0.47), and no weight told them
 apart. A loop whose two starts, a metre or more apart, polished into the one fit on a scene that
 measures every direction (:attr:`~vcr_odom.loops.verify.LoopDecision.corroborated`) was right on every
-courtyard walk and indoor walk replayed. Not on every drive: an HDL-64E figure eight (825) has a
+courtyard walk and indoor walk replayed, and so was a fit whose surfaces face every direction well
+(:data:`~vcr_odom.loops.corroboration.STRONG_SHARE`) whatever its starts did. Not on every drive: an HDL-64E figure eight (825) has a
 corroborated fit 1.25 m off, and only the cycles of its 25 neighbours tell; so where cycles are many,
 they scale the sigmas and every loop is weighed. Scaling the odometry's sigmas by the drift the
 corroborated loops measure, instead of trusting them, let false fits along indoor corridors through
