@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from vcr_odom.geometry import invert, make_transform, rotation_from_euler_zyx
+from vcr_odom.geometry import invert, make_transform, rotation_angle, rotation_from_euler_zyx
 from vcr_odom.loops.cycles import loop_cycles, odometry_scale
 from vcr_odom.loops.drift import DriftModel
-from vcr_odom.loops.graph import LoopEdge, optimise
+from vcr_odom.loops.graph import LOOP_SHARE, LoopEdge, loop_share, optimise
 from vcr_odom.loops.nodes import Node
 
 LOOP_INFORMATION = np.diag([math.radians(0.2) ** -2] * 3 + [0.05**-2] * 3)  # 0.2 deg, 5 cm
@@ -128,3 +128,26 @@ def test_two_loops_that_disagree_are_both_kept_by_their_cycle() -> None:
     cycles = loop_cycles(nodes, [right, slid], _sigmas(nodes))
     assert len(cycles) == 1 and cycles[0].ratio > 3.0
     assert optimise(nodes, [right, slid]).cycle_outliers == {}
+
+
+def test_a_lone_loop_closes_the_heading_it_measured() -> None:
+    """One loop on a lap whose odometry drifted ~5 deg: the map takes the heading the loop measured
+    (at 1/25 of its information, as where many loops pin a passage, half of the 5 deg stayed)."""
+    truth, nodes = _noisy_circle(3.0)
+    loop = LoopEdge(62, 2, invert(truth[2]) @ truth[62], LOOP_INFORMATION)
+    result = optimise(nodes, [loop])
+    odometry = np.stack([node.pose for node in nodes])
+
+    def heading_gap(poses: np.ndarray) -> float:
+        error = invert(loop.transform) @ invert(poses[2]) @ poses[62]
+        return math.degrees(rotation_angle(error[:3, :3]))
+
+    assert heading_gap(odometry) > 4.0
+    assert heading_gap(result.node_poses) < 0.1 * heading_gap(odometry)
+
+
+def test_loops_that_weigh_each_other_keep_their_share_and_few_share_one_loops_worth() -> None:
+    assert loop_share(16, cycles=50) == LOOP_SHARE
+    assert loop_share(1, cycles=0) == 1.0
+    assert loop_share(2, cycles=1) == 0.5
+    assert loop_share(40, cycles=3) == LOOP_SHARE
