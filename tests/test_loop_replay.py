@@ -12,6 +12,7 @@ import pytest
 from click.testing import CliRunner
 
 from vcr_odom.cli.main import cli
+from vcr_odom.loops.graph import loop_share
 
 SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "loop_replay.py"
 
@@ -118,4 +119,6 @@ def test_a_replay_keeps_the_loops_map_closed_on_a_walk(tmp_path: Path) -> None:
     assert metrics["loops"]["accepted"] >= 1, "the walk closes: nothing to compare otherwise"
     assert row["accepted"] == metrics["loops"]["accepted"]
     assert row["candidates"] == len(loops["candidates"])
+    scale = metrics["loops"]["odometry_sigma_scale"]
+    assert scale["final_loop_share"] == loop_share(metrics["loops"]["accepted"], scale["cycles"])
     assert abs(row["map_ate_m"] - metrics["ate_rpe"]["ate_se3_trans_rmse_m"]) < 1e-3

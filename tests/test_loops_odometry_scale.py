@@ -91,6 +91,7 @@ def test_a_noisy_odometry_keeps_its_right_loops_and_drops_a_block_away() -> None
     assert result.odometry is not None and result.odometry.scale > 1.0
     assert result.kept == [True] * len(right) + [False]
     assert list(result.cycle_outliers) == [len(right)], "dropped by its cycles, before the robust rounds"
+    assert result.loop_share == LOOP_SHARE, "many cycles: each loop keeps the drives' share"
 
     odometry = np.stack([node.pose for node in nodes])
 
@@ -136,6 +137,7 @@ def test_a_lone_loop_closes_the_heading_it_measured() -> None:
     truth, nodes = _noisy_circle(3.0)
     loop = LoopEdge(62, 2, invert(truth[2]) @ truth[62], LOOP_INFORMATION)
     result = optimise(nodes, [loop])
+    assert result.loop_share == 1.0
     odometry = np.stack([node.pose for node in nodes])
 
     def heading_gap(poses: np.ndarray) -> float:

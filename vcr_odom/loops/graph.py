@@ -104,6 +104,8 @@ class GraphResult:
     """Each odometry edge's factor on both sigmas (:func:`~vcr_odom.loops.odometry_doubts.fit_sigma_factors`)."""
     trusted: int = 0
     """Loops the rounds kept at full weight (:func:`_trusted`)."""
+    loop_share: float | None = None
+    """Each kept loop's share of its information in the final solve (:func:`loop_share`)."""
 
 
 def factor_summary(factors: NDArray[np.float64]) -> dict[str, float | int | None]:
@@ -186,6 +188,7 @@ def optimise(
         heading_factors,
         fitted,
         sum(trusted[:n]),
+        share,
     )
 
 

@@ -394,7 +394,12 @@ def close_loops(
         poses = np.array(odometry_poses, copy=True)
     phase.seconds["graph"] = time.perf_counter() - started
     up = {"used": False} if graph.up is None else graph.up.to_dict() | {"dropped": graph.up_dropped}
-    scale = None if graph.odometry is None else graph.odometry.to_dict() | {"trusted_loops": graph.trusted}
+    scale = None
+    if graph.odometry is not None:
+        scale = graph.odometry.to_dict() | {
+            "trusted_loops": graph.trusted,
+            "final_loop_share": graph.loop_share,
+        }
     heading = None if graph.heading_factors is None else factor_summary(graph.heading_factors)
     fits = None if graph.fit_factors is None else factor_summary(graph.fit_factors)
     return ClosedLoops(decisions, poses, up, scale, heading, fits)
