@@ -98,3 +98,16 @@ def test_the_ground_is_left_out_where_the_odometrys_tilt_agrees_with_it() -> Non
     assert np.array_equal(
         result.node_poses, optimise(nodes, _loops(truth), attitude_sigma_deg=0.0).node_poses
     )
+
+
+def test_a_loop_the_rounds_drop_leaves_the_odometry_untouched_whatever_the_ground_says() -> None:
+    """The ground's up acts only with loops: where the one verified loop is dropped (a look-alike a
+    block away), the map is the odometry, as `map` reports no loop."""
+    truth, odometry = _lap(pitch_drift_deg_per_node=0.5)
+    nodes = _nodes(odometry)
+    block_away = make_transform(np.eye(3), [30.0, 0, 0])
+    false_loop = LoopEdge(70, 10, block_away @ invert(truth[10]) @ truth[70], EXACT)
+    result = optimise(nodes, [false_loop])
+    assert result.kept == [False]
+    assert result.up is None and result.loop_share is None
+    assert result.node_poses.tolist() == np.stack(odometry).tolist()

@@ -38,7 +38,9 @@ The same holds for the edges whose frames fitted their predecessors poorly
 Why up directions (:mod:`~vcr_odom.loops.up_priors`): loops cannot see a tilt that drifted between
 them, since a lobe driven in a tilted plane still meets itself at its ends. Each node's measured up
 (its walls', else its ground's) holds its roll and pitch; its heading and position stay free. They act
-only with loops: without any, the odometry is returned untouched.
+only with loops: without any, or where the rounds drop every loop, the odometry is returned untouched
+(a walk whose one verified loop the rounds dropped was otherwise moved 2.5 m by its walls' up alone,
+with `map` reporting no loop).
 """
 
 from __future__ import annotations
@@ -167,7 +169,10 @@ def optimise(
             break
         weights = new
     kept = [w >= DROP_WEIGHT for w in weights]
-    share = loop_share(sum(kept[: len(loops)]), len(cycles))
+    n = len(loops)
+    if not any(kept[:n]):  # every loop dropped: the up priors alone do not move the odometry
+        return GraphResult(odometry.copy(), weights[:n], kept[:n], None, 0, scale, outliers)
+    share = loop_share(sum(kept[:n]), len(cycles))
     final = [
         w * (share if isinstance(edge, LoopEdge) else 1.0) if k else 0.0
         for w, k, edge in zip(weights, kept, edges, strict=True)
@@ -176,7 +181,6 @@ def optimise(
     fitted = np.ones(len(sigmas[0])) if fit_factors is None else np.asarray(fit_factors, dtype=np.float64)
     final_sigmas = (sigmas[0] * fitted, sigmas[1] * heading_factors * fitted)
     poses = _solve(odometry, final_sigmas, edges, final)
-    n = len(loops)
     return GraphResult(
         poses,
         weights[:n],

@@ -388,7 +388,7 @@ def close_loops(
             decision.check = "graph"
             decision.reason = dropped_reason(graph.cycle_outliers.get(k), weight, len(edges))
     before = np.stack([node.pose for node in nodes])
-    if edges:
+    if any(graph.kept):
         poses = correct_frames(odometry_poses, [n.position for n in nodes], before, graph.node_poses)
     else:
         poses = np.array(odometry_poses, copy=True)
