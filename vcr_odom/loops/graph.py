@@ -200,7 +200,7 @@ def loop_share(kept: int, cycles: int) -> float:
     """Each kept loop's share of its information in the final solve: :data:`LOOP_SHARE` where the loops
     close enough cycles to weigh each other (:data:`~vcr_odom.loops.cycles.MIN_CYCLES`, as for
     :func:`_trusted`), else one loop's worth shared among the ``kept`` loops. Over 57 recorded
-    courtyard walks the median map fell from 0.82 to 0.74 of the odometry's ATE (about even on 12 held
+    courtyard walks the median map fell from 0.82 to 0.74 of the odometry's ATE (a little on 24 held
     out), and indoor walks whose heading drifted 20 deg per 100 m from 0.53 and 0.71 m to 0.28 and
     0.25 m (901, 902; docs/benchmarks.md, "Few loops, whole loops"); car drives close many cycles and
     are unchanged."""
