@@ -207,6 +207,13 @@ def azimuth_coverage(cloud: NDArray) -> float:
     return len(np.unique(sectors)) / AZIMUTH_SECTORS
 
 
+def mostly_narrow(nodes: Sequence[Node]) -> bool:
+    """Whether the nodes' median :func:`azimuth_coverage` is under :data:`NARROW_FIELD_COVERAGE`: a
+    solid-state field of view, whose scans see every surface from one side."""
+    coverage = [azimuth_coverage(node.cloud) for node in nodes if len(node.cloud)]
+    return bool(coverage) and float(np.median(coverage)) < NARROW_FIELD_COVERAGE
+
+
 def submap_members(
     nodes: list[Node], index: int, other: int | None = None, half_path_m: float = SUBMAP_HALF_PATH_M
 ) -> tuple[int, ...]:

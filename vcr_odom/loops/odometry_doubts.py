@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from vcr_odom.loops.nodes import NARROW_FIELD_COVERAGE, Node, azimuth_coverage
+from vcr_odom.loops.nodes import Node, mostly_narrow
 
 FIT_POWER = 4.0
 MAX_FIT_FACTOR = 10.0
@@ -65,7 +65,7 @@ def fit_sigma_factors(nodes: Sequence[Node], fits: Mapping[int, float]) -> NDArr
     median fit or better, where no frame of the edge has a fit, and on every edge of a sensor that
     sees all round."""
     factors = np.ones(max(len(nodes) - 1, 0), dtype=np.float64)
-    if not fits or not _mostly_narrow(nodes):
+    if not fits or not mostly_narrow(nodes):
         return factors
     frames = np.array(sorted(fits), dtype=np.int64)
     values = np.array([fits[int(frame)] for frame in frames], dtype=np.float64)
@@ -78,8 +78,3 @@ def fit_sigma_factors(nodes: Sequence[Node], fits: Mapping[int, float]) -> NDArr
             ratio = typical / lowest if lowest > 0 else math.inf
             factors[k] = min(max(ratio**FIT_POWER, 1.0), MAX_FIT_FACTOR)
     return factors
-
-
-def _mostly_narrow(nodes: Sequence[Node]) -> bool:
-    coverage = [azimuth_coverage(node.cloud) for node in nodes if len(node.cloud)]
-    return bool(coverage) and float(np.median(coverage)) < NARROW_FIELD_COVERAGE

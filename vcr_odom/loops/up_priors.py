@@ -22,7 +22,7 @@ from scipy.spatial.transform import Rotation
 
 from vcr_odom.geometry import invert
 from vcr_odom.loops.edges import GraphEdge
-from vcr_odom.loops.nodes import Node, NodeNormals
+from vcr_odom.loops.nodes import Node, NodeNormals, mostly_narrow
 from vcr_odom.loops.walls import WallsUp, walls_up
 
 ATTITUDE_SIGMA_DEG = 2.0
@@ -52,6 +52,14 @@ wall nodes. On synthetic drives whose odometry tilt stayed within 1.2 deg (p90) 
 deg (Avia car crossings 562, 831, 841, 842: 1.9-2.2), where the priors raised the map's ATE (841:
 0.074 -> 0.309 m without this rule); on those whose tilt drifted 3-9 deg, 3.2-8.9 deg, where they
 cut it by 0.3-0.8 (802: 0.529 -> 0.110 m)."""
+WALLS_AGREEMENT_NARROW_DEG = 4.0
+"""The same for a narrow field of view (:func:`~vcr_odom.loops.nodes.mostly_narrow`): it sees a street's
+walls from one end, at a slant, and their up errs alike over many nodes in a row, where smoothing does
+not help. On Avia drives whose odometry's tilt was right to 0.14-0.56 deg (p90) the walls
+disagreed by 0.46-2.58 deg (807, 2306, 2309, 2319), and by 3.29 where only five nodes saw walls (2320,
+a highway); at 2.58 (2306, an avenue loop) the priors raised the map's ATE from 0.056 to 0.423 m, its
+height swinging +-0.5 m. On the Avia courtyard walks, where the odometry's tilt does drift (0.6-18 deg
+at p90), the priors moved no map by more than 0.02 m between 2.5 and 4 deg (16 of 105 walks)."""
 MEASURED_SHARE = 0.1
 """A tilt axis counts as measured by a node's walls where its information is at least this share of
 the strongest axis' (walls facing one way measure one axis)."""
@@ -108,7 +116,7 @@ def up_priors(
 
 def _walls_priors(nodes: Sequence[Node], walls: list[tuple[int, WallsUp]]) -> UpPriors:
     """One prior per wall node after the first, where the smoothed disagreement exceeds
-    :data:`WALLS_AGREEMENT_DEG`."""
+    :data:`WALLS_AGREEMENT_DEG` (:data:`WALLS_AGREEMENT_NARROW_DEG` for a narrow field of view)."""
     up = _walls_reference(nodes, walls)
     asked = []
     for k, found in walls:
@@ -120,7 +128,7 @@ def _walls_priors(nodes: Sequence[Node], walls: list[tuple[int, WallsUp]]) -> Up
         for i in range(len(asked))
     ]
     tilt_p90 = math.degrees(float(np.percentile(np.linalg.norm(smoothed, axis=1), 90)))
-    if tilt_p90 <= WALLS_AGREEMENT_DEG:
+    if tilt_p90 <= (WALLS_AGREEMENT_NARROW_DEG if mostly_narrow(nodes) else WALLS_AGREEMENT_DEG):
         return UpPriors([], tilt_p90, len(walls), "walls")
     measured = [(k, found.up, found.information) for k, found in walls]
     return UpPriors(_priors(nodes, measured, up), tilt_p90, len(walls), "walls")
