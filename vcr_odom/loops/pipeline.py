@@ -39,6 +39,7 @@ from vcr_odom.loops.drift import DriftModel
 from vcr_odom.loops.graph import LoopEdge, correct_frames, factor_summary, optimise
 from vcr_odom.loops.nodes import NODE_SPACING_DEG, NODE_SPACING_M, Node, NodeNormals, NodeRecorder
 from vcr_odom.loops.odometry_doubts import OdometryDoubts, fit_sigma_factors
+from vcr_odom.loops.same_place import reject_disagreeing_submap_fits
 from vcr_odom.loops.up_priors import ATTITUDE_SIGMA_DEG
 from vcr_odom.loops.verify import CHECKS, LoopDecision, LoopVerifier
 from vcr_odom.mapping import VoxelMap
@@ -368,6 +369,7 @@ def close_loops(
             for candidate in candidates:
                 decisions.append(verifier.verify(candidate, nodes))
                 advance(candidate.source, candidate.prior)
+        reject_disagreeing_submap_fits(decisions, nodes)
     phase.seconds["loops"] = time.perf_counter() - started
     started = time.perf_counter()
     edges = [
