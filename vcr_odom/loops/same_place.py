@@ -33,7 +33,8 @@ DISAGREE_M = 2.0
 that were right put it 0.07-0.59 m apart on the Avia car crossings (807, 2309, 2320) and 1.31 m on a
 courtyard walk (1608); 2316's false fit 5.98 and 6.46 m from its two neighbours."""
 _UNMEASURED = ("points", "doubted_submap", "overlap", "fit_rmse", "drift_bound")
-"""Checks failed before (or at) the drift bound: no fit of the place to compare with."""
+"""Checks that leave no fit of the place to compare with: failed at or before the drift bound, or a
+submap the verification found bent (``doubted_submap``), whose fit says nothing of the place."""
 
 
 def reject_disagreeing_submap_fits(decisions: Sequence[LoopDecision], nodes: Sequence[Node]) -> None:
