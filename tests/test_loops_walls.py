@@ -158,10 +158,10 @@ def _leaning_nodes(lean_deg: float, narrow: bool) -> list[Node]:
 
 
 def test_a_narrow_field_of_view_must_disagree_more_before_its_walls_are_taken_for_a_drift() -> None:
-    """The odometry is right; the walls lean past the first 50 m. Seen all round, 3 deg is a drift to
-    correct. Seen through a 70 deg field, walls leaning 2 deg measure over the all-round threshold (a
-    slanted view errs more: Avia drive 2306 measured 2.58 deg with its tilt right to 0.21) and are left
-    out; leaning 5 deg, they are used."""
+    """The walls disagree with the odometry past the first 50 m. Seen all round, 3 deg is taken for the
+    odometry's drift (a spinning sensor's walls are better than that). Seen through a 70 deg field,
+    walls leaning 2 deg measure over the all-round threshold (a slanted view errs more: Avia drive 2306
+    measured 2.58 deg with its tilt right to 0.21) and are left out; leaning 5 deg, they are used."""
     truth, _ = _lap(pitch_drift_deg_per_node=0.0)
     for lean, narrow, used in ((3.0, False, True), (2.0, True, False), (5.0, True, True)):
         result = optimise(_leaning_nodes(lean, narrow), _loops(truth))
