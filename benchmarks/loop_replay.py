@@ -20,6 +20,11 @@ verification and of the graph (``loop_seconds``: compare a change's cost in one 
 machine; ``OMP_NUM_THREADS=1`` keeps two replays side by side from slowing each other many times
 over). A change to the odometry or to how nodes are recorded needs a new recording.
 
+``replay --truth-loops`` runs the loop phase a second time with the graph given the truth's
+``T_target_source`` for each loop it gets (the same loops, informations and rounds) and adds that
+map's ATE (``truth_loops_map_ate_m``): where it is no better than the map's, the loops' measurements
+are not what holds the map back, the odometry's shape between the places they tie is.
+
 Recordings are Python pickles of this checkout's classes: a cache for the machine that made them,
 not a file to exchange (load only recordings you made; a recording from other code may not load).
 """
@@ -27,9 +32,12 @@ not a file to exchange (load only recordings you made; a recording from other co
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import pickle
 import subprocess
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -40,7 +48,9 @@ from rich.table import Table
 
 from vcr_odom.data.selection import FrameSelection
 from vcr_odom.errors import ConfigError
+from vcr_odom.geometry import invert
 from vcr_odom.io import replacing
+from vcr_odom.loops import pipeline
 from vcr_odom.loops.nodes import NodeRecorder
 from vcr_odom.loops.odometry_doubts import OdometryDoubts
 from vcr_odom.loops.pipeline import LoopOptions, MapSettings, Phases, close_loops, loop_network, loops_json
@@ -100,9 +110,12 @@ def record(args: argparse.Namespace) -> None:
     print(f"{len(run.frame_indices)} frames, {len(recording['nodes'])} nodes -> {args.out}")
 
 
-def replay_one(path: Path, options_set: dict[str, str] | None = None) -> dict[str, Any]:
+def replay_one(
+    path: Path, options_set: dict[str, str] | None = None, truth_loops: bool = False
+) -> dict[str, Any]:
     """The loop phase on one recording, scored against its sequence's ground truth; ``options_set``
-    replaces recorded loop options (``LoopOptions`` field names, values as typed)."""
+    replaces recorded loop options (``LoopOptions`` field names, values as typed); ``truth_loops``
+    adds the map's ATE with every loop the graph gets measured by the truth (see the module doc)."""
     with path.open("rb") as handle:
         recording = pickle.load(handle)  # the caller's own recording (see the module doc)
     if not isinstance(recording, dict) or recording.get("format") != FORMAT:
@@ -123,6 +136,14 @@ def replay_one(path: Path, options_set: dict[str, str] | None = None) -> dict[st
     row = score_loops(
         gt, recording["frame_indices"], loops, recording["poses"], closed.poses, options.min_loop_path
     )
+    if truth_loops:
+        with _loops_measured_by(gt):
+            ideal = close_loops(
+                options, network, recording["nodes"], recording["poses"], Phases(None), doubts
+            )
+        row["truth_loops_map_ate_m"] = score_loops(
+            gt, recording["frame_indices"], loops, recording["poses"], ideal.poses, options.min_loop_path
+        )["map_ate_m"]
     return {
         "recording": str(path),
         "sequence": folder.name,
@@ -133,8 +154,30 @@ def replay_one(path: Path, options_set: dict[str, str] | None = None) -> dict[st
     }
 
 
+@contextmanager
+def _loops_measured_by(gt: np.ndarray) -> Iterator[None]:
+    """The loop phase's pose graph given ``gt``'s ``T_target_source`` (every frame's true pose) in
+    place of each loop's measured one; everything else as the verification left it."""
+    optimise = pipeline.optimise
+
+    def with_true_loops(nodes: list[Any], loops: list[Any], *args: Any, **kwargs: Any) -> Any:
+        true = [
+            dataclasses.replace(
+                loop, transform=invert(gt[nodes[loop.target].position]) @ gt[nodes[loop.source].position]
+            )
+            for loop in loops
+        ]
+        return optimise(nodes, true, *args, **kwargs)
+
+    pipeline.optimise = with_true_loops
+    try:
+        yield
+    finally:
+        pipeline.optimise = optimise
+
+
 def replay(args: argparse.Namespace) -> None:
-    rows = [replay_one(path, args.options_set) for path in args.recordings]
+    rows = [replay_one(path, args.options_set, args.truth_loops) for path in args.recordings]
     table = Table(title=f"the loop phase at {_commit()} on recorded odometry")
     for header in (
         "sequence",
@@ -146,6 +189,8 @@ def replay(args: argparse.Namespace) -> None:
     ):
         table.add_column(header)
     table.add_column("false loops: frames, m / deg off")
+    if args.truth_loops:
+        table.add_column("map ATE, loops measured by the truth [m]")
     table.add_column("max change [m]")
     table.add_column("loops / graph [s]")
     for row in rows:
@@ -162,6 +207,7 @@ def replay(args: argparse.Namespace) -> None:
             f"{row['passages_closed']}/{row['revisit_passages']}",
             f"{row['accepted']} ({row['false_closures']})",
             false or "-",
+            *([f"{row['truth_loops_map_ate_m']:.3f}"] if args.truth_loops else []),
             f"{row['max_change_m']:.3f}",
             f"{row['loop_seconds']['loops']:.1f} / {row['loop_seconds']['graph']:.1f}",
         )
@@ -213,6 +259,11 @@ def main() -> None:
         default=[],
         metavar="NAME=VALUE",
         help="replace a recorded loop option (a LoopOptions field, e.g. passage_attempts=1000); repeatable",
+    )
+    again.add_argument(
+        "--truth-loops",
+        action="store_true",
+        help="also the map's ATE with each loop the graph gets measured by the truth (twice the time)",
     )
     args = parser.parse_args()
     if args.command == "replay":

@@ -7,7 +7,9 @@ import pickle
 import subprocess
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
+import numpy as np
 import pytest
 from click.testing import CliRunner
 
@@ -122,3 +124,31 @@ def test_a_replay_keeps_the_loops_map_closed_on_a_walk(tmp_path: Path) -> None:
     scale = metrics["loops"]["odometry_sigma_scale"]
     assert scale["final_loop_share"] == loop_share(metrics["loops"]["accepted"], scale["cycles"])
     assert abs(row["map_ate_m"] - metrics["ate_rpe"]["ate_se3_trans_rmse_m"]) < 1e-3
+
+
+def test_truth_loops_hand_the_graph_each_loop_as_the_truth_measures_it(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """``replay --truth-loops``: the graph gets the truth's T_target_source in place of the measured one,
+    and the loop phase's own graph is back once the replay is done."""
+    monkeypatch.syspath_prepend(str(SCRIPT.parent))
+    import loop_replay
+
+    from vcr_odom.geometry import invert, make_transform
+    from vcr_odom.loops import pipeline
+    from vcr_odom.loops.graph import LoopEdge
+
+    seen: list[list[LoopEdge]] = []
+    monkeypatch.setattr(pipeline, "optimise", lambda nodes, loops, *a, **k: seen.append(list(loops)))
+    gt = np.stack([make_transform(np.eye(3), np.array([float(k), 0.5 * k, 0.0])) for k in range(6)])
+    nodes = [SimpleNamespace(position=p) for p in (0, 2, 5)]
+    wrong = LoopEdge(2, 0, make_transform(np.eye(3), np.array([9.0, 9.0, 9.0])), np.eye(6))
+    with loop_replay._loops_measured_by(gt):
+        pipeline.optimise(nodes, [wrong])
+    pipeline.optimise(nodes, [wrong])
+
+    (given,), (after,) = seen
+    np.testing.assert_allclose(given.transform, invert(gt[0]) @ gt[5])
+    np.testing.assert_allclose(given.information, wrong.information)
+    assert (given.source, given.target) == (2, 0)
+    np.testing.assert_allclose(after.transform, wrong.transform)
