@@ -15,8 +15,9 @@ Per sequence:
   accepted loop's source count as *covered*.
 - **False closures**: accepted loops whose measured transform is more than 1 m / 3 deg off the true
   one (a loop between places truly 15 m apart, measured right, is a true constraint; the JSON gives
-  the farthest accepted loop). **max change**: how far the map moved any frame from the odometry
-  (drives without revisits must stay within 1 cm).
+  the farthest accepted loop); the JSON lists the right ones' errors too (``right_loop_errors``, each
+  with whether it was a fit of submaps). **max change**: how far the map moved any frame from the
+  odometry (drives without revisits must stay within 1 cm).
 - **Time**: ``run`` (the odometry alone, same method, same process, its folder written) against
   ``map`` (its folder written); **memory**: the nodes' bytes and the process's peak RSS.
 """
@@ -78,7 +79,7 @@ def score_loops(
     nodes = [(frame_position[n["frame"]], n["path_m"]) for n in loops["nodes"]]
     passages = revisit_passages(gt, [p for p, _ in nodes], min_loop_path)
     accepted = [c for c in loops["candidates"] if c["accepted"]]
-    false, farthest = [], 0.0
+    false, right, farthest = [], [], 0.0
     for loop in accepted:
         a, b = frame_position[loop["source_frame"]], frame_position[loop["target_frame"]]
         truth = invert(gt[b]) @ gt[a]
@@ -87,7 +88,9 @@ def score_loops(
         error_m = float(np.linalg.norm(error[:3, 3]))
         error_deg = math.degrees(float(rotation_angle(error[:3, :3])))
         farthest = max(farthest, apart)
-        if error_m > FALSE_M or error_deg > FALSE_DEG:
+        if error_m <= FALSE_M and error_deg <= FALSE_DEG:
+            right.append({"error_m": error_m, "error_deg": error_deg, "submaps": bool(loop.get("submaps"))})
+        else:
             false.append(
                 {
                     "frames": [loop["source_frame"], loop["target_frame"]],
@@ -124,6 +127,7 @@ def score_loops(
         "accepted": len(accepted),
         "false_closures": len(false),
         "false_closure_details": false,
+        "right_loop_errors": right,
         "farthest_loop_m": round(farthest, 2),
         "max_change_m": float(np.linalg.norm(map_poses[:, :3, 3] - odometry_poses[:, :3, 3], axis=1).max()),
     }

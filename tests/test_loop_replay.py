@@ -54,6 +54,7 @@ def test_a_replay_scores_what_map_made_of_the_same_frames(small_synthetic_root: 
     assert abs(row["map_ate_m"] - metrics["ate_rpe"]["ate_se3_trans_rmse_m"]) < 1e-9
     assert abs(row["odometry_ate_m"] - metrics["odometry"]["ate_rpe"]["ate_se3_trans_rmse_m"]) < 1e-9
     assert set(row["loop_seconds"]) == {"loops", "graph"} and min(row["loop_seconds"].values()) >= 0
+    assert len(row["right_loop_errors"]) + row["false_closures"] == row["accepted"]
 
     # --set replaces a recorded option: 8 frames are too short a path for a loop at 30 m, not at 1 m
     assert row["candidates"] == 0 and row["options_set"] == {}
@@ -63,6 +64,7 @@ def test_a_replay_scores_what_map_made_of_the_same_frames(small_synthetic_root: 
     assert replayed.returncode == 0, replayed.stderr
     (row,) = json.loads(wider.read_text())
     assert row["candidates"] > 0 and row["options_set"] == {"min_loop_path": "1", "revisit_radius": "50"}
+    assert len(row["right_loop_errors"]) + row["false_closures"] == row["accepted"]
 
 
 def test_a_file_that_is_not_a_recording_is_refused_by_name(tmp_path: Path) -> None:
@@ -152,3 +154,25 @@ def test_truth_loops_hand_the_graph_each_loop_as_the_truth_measures_it(
     np.testing.assert_allclose(given.information, wrong.information)
     assert (given.source, given.target) == (2, 0)
     np.testing.assert_allclose(after.transform, wrong.transform)
+
+
+def test_right_loops_errors_are_pooled_over_recordings_own_clouds_and_submaps_apart(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.syspath_prepend(str(SCRIPT.parent))
+    import loop_replay
+
+    rows = [
+        {"right_loop_errors": [{"error_m": 0.3, "error_deg": 1.0, "submaps": True}]},
+        {
+            "right_loop_errors": [
+                {"error_m": 0.4, "error_deg": 0.0, "submaps": True},
+                {"error_m": 0.1, "error_deg": 0.2, "submaps": False},
+            ]
+        },
+        {"right_loop_errors": []},
+    ]
+    pooled = loop_replay.right_loop_errors(rows)
+    assert pooled["submaps"] == pytest.approx((2, np.sqrt(0.125), np.sqrt(0.5)))
+    assert pooled["own clouds"] == pytest.approx((1, 0.1, 0.2))
+    assert loop_replay.right_loop_errors(rows[2:]) == {}
