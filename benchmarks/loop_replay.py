@@ -24,7 +24,9 @@ over). A change to the odometry or to how nodes are recorded needs a new recordi
 ``replay --truth-loops`` runs the loop phase a second time with the graph given the truth's
 ``T_target_source`` for each loop it gets (the same loops, informations and rounds) and adds that
 map's ATE (``truth_loops_map_ate_m``): where it is no better than the map's, the loops' measurements
-are not what holds the map back, the odometry's shape between the places they tie is.
+are not what holds the map back, the odometry's shape between the places they tie is. It also splits
+the odometry's error in what its per-step rotation errors and its per-step translation errors make
+alone (``odometry_rotation_share``, ``odometry_error_split.py``): loops undo the first, not the second.
 
 Recordings are Python pickles of this checkout's classes: a cache for the machine that made them,
 not a file to exchange (load only recordings you made; a recording from other code may not load).
@@ -44,6 +46,7 @@ from typing import Any
 
 import numpy as np
 from loop_closure import score_loops  # beside this script
+from odometry_error_split import error_split  # beside this script
 from rich.console import Console
 from rich.table import Table
 
@@ -144,6 +147,10 @@ def replay_one(
                 options, network, recording["nodes"], recording["poses"], Phases(None), doubts
             )
         row["truth_loops_map_ate_m"] = ate_rpe(ideal.poses, gt, alignment="se3").ate_trans_rmse_m
+        split = error_split(recording["poses"], gt)
+        row["odometry_rotation_only_ate_m"] = split.rotation_only_ate_m
+        row["odometry_translation_only_ate_m"] = split.translation_only_ate_m
+        row["odometry_rotation_share"] = split.rotation_share
     return {
         "recording": str(path),
         "sequence": folder.name,
@@ -191,6 +198,7 @@ def replay(args: argparse.Namespace) -> None:
     table.add_column("false loops: frames, m / deg off")
     if args.truth_loops:
         table.add_column("map ATE, loops measured by the truth [m]")
+        table.add_column("odometry error's rotation share")
     table.add_column("max change [m]")
     table.add_column("loops / graph [s]")
     for row in rows:
@@ -207,7 +215,11 @@ def replay(args: argparse.Namespace) -> None:
             f"{row['passages_closed']}/{row['revisit_passages']}",
             f"{row['accepted']} ({row['false_closures']})",
             false or "-",
-            *([f"{row['truth_loops_map_ate_m']:.3f}"] if args.truth_loops else []),
+            *(
+                [f"{row['truth_loops_map_ate_m']:.3f}", f"{row['odometry_rotation_share']:.2f}"]
+                if args.truth_loops
+                else []
+            ),
             f"{row['max_change_m']:.3f}",
             f"{row['loop_seconds']['loops']:.1f} / {row['loop_seconds']['graph']:.1f}",
         )
