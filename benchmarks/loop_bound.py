@@ -6,7 +6,8 @@ the bound on what loop closure can do, whatever its loops. Not a test: run
 Each trial drives one of three routes in the plane, a node every 3 m (a 150 x 100 m block once round
 and 30 m on; a figure eight of two 100 x 100 m lobes; 250 m out and back 3 m to the side), and makes
 an odometry from the truth's steps, each given an error drawn anew: a heading error (yaw, degrees), a
-translation error (metres on each of x and y) and a constant heading bias (degrees per step). The pose
+translation error (metres on each of x and y), a constant heading bias (degrees per step) and a scale
+bias (a share of the step's length, along it). The pose
 graph is open3d's, weighted with the very sigmas the errors were drawn from (the best weighting there
 is), and its loops are perfect: every second node within 5 m of a node passed at least 30 m of path
 before, measured by the truth to 1 cm / 0.03 deg. Per regime and route, over the trials: the
@@ -15,7 +16,8 @@ trials reach a third, and the rotation share of the odometry's error (``odometry
 the column ``loop_replay.py replay --truth-loops`` prints for recorded drives).
 
 Why: an odometry's heading error turns everything after it, a loop sees it and the graph undoes it;
-a translation error between two revisits leaves the loop only its sum, so no graph can place it.
+a translation error between two revisits leaves the loop only its sum, so no graph can place it; and
+a scale error leaves a route that comes back still coming back, so no loop sees it at all.
 """
 
 from __future__ import annotations
@@ -54,12 +56,14 @@ ROUTES: dict[str, list[tuple[float, float]]] = {
 
 @dataclass(frozen=True)
 class Regime:
-    """Per-step odometry errors: heading sigma and bias in degrees, translation sigma in metres."""
+    """Per-step odometry errors: heading sigma and bias in degrees, translation sigma in metres, and
+    a scale bias (each step's translation measured ``1 + scale_bias`` times its length)."""
 
     name: str
     heading_sigma_deg: float
     translation_sigma_m: float
     heading_bias_deg: float = 0.0
+    scale_bias: float = 0.0
 
 
 REGIMES = (
@@ -67,6 +71,7 @@ REGIMES = (
     Regime("translation noise 3 cm", 0.001, 0.03),
     Regime("both", 0.1, 0.03),
     Regime("heading bias 0.05 deg + noise 0.05 deg", 0.05, 0.002, 0.05),
+    Regime("scale bias -3 % + heading noise 0.01 deg", 0.01, 0.002, scale_bias=-0.03),
 )
 
 
@@ -95,10 +100,12 @@ def noisy_odometry(
     """The truth's steps, each followed by a fresh error of ``regime``, chained from the first pose."""
     poses = [truth[0]]
     for k in range(len(truth) - 1):
+        step = invert(truth[k]) @ truth[k + 1]
         heading = math.radians(rng.normal(regime.heading_bias_deg, regime.heading_sigma_deg))
-        shift = [*rng.normal(0.0, regime.translation_sigma_m, 2), 0.0]
+        shift = np.array([*rng.normal(0.0, regime.translation_sigma_m, 2), 0.0])
+        shift += regime.scale_bias * step[:3, :3].T @ step[:3, 3]  # along the step, in its end's frame
         error = make_transform(rotation_from_euler_zyx(heading, 0.0, 0.0), shift)
-        poses.append(poses[-1] @ invert(truth[k]) @ truth[k + 1] @ error)
+        poses.append(poses[-1] @ step @ error)
     return np.stack(poses)
 
 

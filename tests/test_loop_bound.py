@@ -83,3 +83,19 @@ def test_no_loop_undoes_translation_noise_between_revisits(bench) -> None:
     ratios = [t.map_ate_m / t.odometry_ate_m for t in trials]
     assert np.median(ratios) > 0.4
     assert all(t.rotation_share < 0.5 for t in trials)
+
+
+def test_a_scale_error_is_invisible_to_loops(bench) -> None:
+    """A route measured 3 % short still comes back to where it started: the loops agree with it."""
+    loop_bound, _ = bench
+    truth = loop_bound.route_poses(loop_bound.ROUTES["return"])
+    short = loop_bound.Regime("short", 1e-4, 1e-4, scale_bias=-0.03)
+    result = loop_bound.trial(truth, short, np.random.default_rng(2))
+    odometry = loop_bound.noisy_odometry(truth, short, np.random.default_rng(2))
+
+    def lengths(poses: np.ndarray) -> np.ndarray:
+        return np.linalg.norm(np.diff(poses[:, :3, 3], axis=0), axis=1)
+
+    np.testing.assert_allclose(lengths(odometry), 0.97 * lengths(truth), rtol=1e-3)
+    assert result.odometry_ate_m > 1.0
+    assert result.map_ate_m > 0.9 * result.odometry_ate_m
