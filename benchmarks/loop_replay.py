@@ -26,7 +26,8 @@ over). A change to the odometry or to how nodes are recorded needs a new recordi
 map's ATE (``truth_loops_map_ate_m``): where it is no better than the map's, the loops' measurements
 are not what holds the map back, the odometry's shape between the places they tie is. It also splits
 the odometry's error in what its per-step rotation errors and its per-step translation errors make
-alone (``odometry_rotation_share``, ``odometry_error_split.py``): loops undo the first, not the second.
+alone (``odometry_rotation_share``, ``odometry_error_split.py``): loops undo the first, not the second;
+and gives the odometry's scale error (``odometry_scale_error``), which no loop sees.
 
 Recordings are Python pickles of this checkout's classes: a cache for the machine that made them,
 not a file to exchange (load only recordings you made; a recording from other code may not load).
@@ -151,6 +152,7 @@ def replay_one(
         row["odometry_rotation_only_ate_m"] = split.rotation_only_ate_m
         row["odometry_translation_only_ate_m"] = split.translation_only_ate_m
         row["odometry_rotation_share"] = split.rotation_share
+        row["odometry_scale_error"] = split.scale_error
     return {
         "recording": str(path),
         "sequence": folder.name,
@@ -199,6 +201,7 @@ def replay(args: argparse.Namespace) -> None:
     if args.truth_loops:
         table.add_column("map ATE, loops measured by the truth [m]")
         table.add_column("odometry error's rotation share")
+        table.add_column("odometry scale error [%]")
     table.add_column("max change [m]")
     table.add_column("loops / graph [s]")
     for row in rows:
@@ -216,7 +219,11 @@ def replay(args: argparse.Namespace) -> None:
             f"{row['accepted']} ({row['false_closures']})",
             false or "-",
             *(
-                [f"{row['truth_loops_map_ate_m']:.3f}", f"{row['odometry_rotation_share']:.2f}"]
+                [
+                    f"{row['truth_loops_map_ate_m']:.3f}",
+                    f"{row['odometry_rotation_share']:.2f}",
+                    f"{100 * row['odometry_scale_error']:+.2f}",
+                ]
                 if args.truth_loops
                 else []
             ),

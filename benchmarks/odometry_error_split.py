@@ -23,10 +23,13 @@ from vcr_odom.metrics.evo_errors import ate_rpe
 @dataclass(frozen=True)
 class ErrorSplit:
     """SE(3)-aligned ATEs [m] of the truth with only the odometry's rotation errors, and with only
-    its translation errors, per step."""
+    its translation errors, per step; and the odometry's scale error (its steps' error along the true
+    steps over their length, least squares: -0.03 measures every step 3 % short), which a route that
+    comes back keeps coming back with, so that no loop sees it."""
 
     rotation_only_ate_m: float
     translation_only_ate_m: float
+    scale_error: float
 
     @property
     def rotation_share(self) -> float:
@@ -46,9 +49,13 @@ def error_split(odometry: ArrayLike, truth: ArrayLike) -> ErrorSplit:
             f"expected two N x 4 x 4 pose arrays of one shape, got {odometry.shape} and {truth.shape}"
         )
     rotation_only, translation_only = [truth[0]], [truth[0]]
+    along, squared = 0.0, 0.0
     for k in range(len(truth) - 1):
         true_step = invert(truth[k]) @ truth[k + 1]
-        error = invert(true_step) @ invert(odometry[k]) @ odometry[k + 1]
+        measured = invert(odometry[k]) @ odometry[k + 1]
+        along += float((measured[:3, 3] - true_step[:3, 3]) @ true_step[:3, 3])
+        squared += float(true_step[:3, 3] @ true_step[:3, 3])
+        error = invert(true_step) @ measured
         turned, moved = np.eye(4), np.eye(4)
         turned[:3, :3], moved[:3, 3] = error[:3, :3], error[:3, 3]
         rotation_only.append(rotation_only[-1] @ true_step @ turned)
@@ -56,4 +63,5 @@ def error_split(odometry: ArrayLike, truth: ArrayLike) -> ErrorSplit:
     return ErrorSplit(
         rotation_only_ate_m=ate_rpe(np.array(rotation_only), truth, alignment="se3").ate_trans_rmse_m,
         translation_only_ate_m=ate_rpe(np.array(translation_only), truth, alignment="se3").ate_trans_rmse_m,
+        scale_error=along / squared if squared > 0 else float("nan"),
     )

@@ -87,7 +87,8 @@ def test_no_loop_undoes_translation_noise_between_revisits(bench) -> None:
 
 def test_a_scale_error_is_invisible_to_loops(bench) -> None:
     """A route measured 3 % short still comes back to where it started: the loops agree with it."""
-    loop_bound, _ = bench
+    loop_bound, split_module = bench
+    error_split = split_module.error_split
     truth = loop_bound.route_poses(loop_bound.ROUTES["return"])
     short = loop_bound.Regime("short", 1e-4, 1e-4, scale_bias=-0.03)
     result = loop_bound.trial(truth, short, np.random.default_rng(2))
@@ -97,5 +98,6 @@ def test_a_scale_error_is_invisible_to_loops(bench) -> None:
         return np.linalg.norm(np.diff(poses[:, :3, 3], axis=0), axis=1)
 
     np.testing.assert_allclose(lengths(odometry), 0.97 * lengths(truth), rtol=1e-3)
+    assert error_split(odometry, truth).scale_error == pytest.approx(-0.03, abs=1e-3)
     assert result.odometry_ate_m > 1.0
     assert result.map_ate_m > 0.9 * result.odometry_ate_m
