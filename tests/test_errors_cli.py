@@ -62,6 +62,20 @@ def test_a_bad_option_is_a_usage_error(synthetic_root: Path, tmp_path: Path) -> 
     assert no_results(results)
 
 
+def test_a_polish_voxel_without_the_kiss_icp_polish_is_refused_before_the_run(
+    synthetic_root: Path, tmp_path: Path
+) -> None:
+    results = tmp_path / "results"
+    for command, method in (("run", "icp"), ("map", "vcr+icp")):
+        result = invoke(
+            command, "--data-root", synthetic_root, "--method", method.split("+")[0],
+            *(["--polish", "icp"] if "+" in method else []), "--polish-voxel", "0.3", "--results-dir", results,
+        )  # fmt: skip
+        assert_fails(result, 2, "--polish-voxel", f"and {method} has none")
+        assert no_results(results)
+    assert_fails(invoke("run", "--data-root", synthetic_root, "--polish-voxel", "0"), 2, "--polish-voxel")
+
+
 def test_a_library_error_is_exit_1_in_one_line(synthetic_root: Path, tmp_path: Path) -> None:
     short = tmp_path / "short.txt"
     short.write_text("1 0 0 0 0 1 0 0 0 0 1 0\n" * 3)

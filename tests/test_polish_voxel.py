@@ -90,6 +90,26 @@ def test_the_polish_fixes_its_voxel_on_the_first_frame(adapt: bool) -> None:
     assert polish.voxel_size == pytest.approx(expected)
 
 
+def test_a_voxel_given_is_kept_whatever_the_first_frame_says() -> None:
+    """``--polish-voxel``: the user's grid for the whole run, built from the run settings."""
+    from vcr_odom.errors import ConfigError
+    from vcr_odom.odometry.run import RunSettings, method_for, polish_options
+
+    sparse = _walls(0.25, np.random.default_rng(3))
+    assert density_voxel(sparse, polish_kiss_config()) != pytest.approx(0.3)
+    polish = KissIcpPolish(voxel_size=0.3)
+    first = polish.prepare(sparse)
+    assert polish.voxel_size == pytest.approx(0.3)
+    assert len(first.source) == source_points(sparse, 0.3)
+
+    assert polish_options(RunSettings(method="fpfh", polish_voxel=0.3)) == {"voxel_size": 0.3}
+    assert polish_options(RunSettings(method="vcr")) == {}
+    with pytest.raises(ConfigError, match="--polish-voxel applies to the kiss-icp polish, and vcr\\+icp"):
+        method_for(RunSettings(method="vcr", polish="icp", polish_voxel=0.3))
+    with pytest.raises(ConfigError, match="positive"):
+        KissIcpPolish(voxel_size=0.0)
+
+
 def _rings(
     beams: int, rng: np.random.Generator, radius: float = 15.0, span: float = 360.0, step: float = 0.2
 ) -> np.ndarray:

@@ -189,7 +189,8 @@ class KissIcpPolish:
     ``keep_prediction``: kiss-icp's constant-velocity prediction stays a start and the global estimate
     is a second one (``polish_start``: ``prediction`` or ``global``); False: the global estimate
     replaces the prediction. ``adapt_voxel``: the first frame picks the map voxel from its density
-    (:func:`~vcr_odom.odometry.polish_voxel.density_voxel`); False keeps ``config``'s. ``weak_share``:
+    (:func:`~vcr_odom.odometry.polish_voxel.density_voxel`); False keeps ``config``'s. ``voxel_size``:
+    this map voxel for the run instead (``--polish-voxel``; the density is not asked). ``weak_share``:
     a result keeps its start's position along the directions its frame cannot measure
     (:func:`~vcr_odom.odometry.degeneracy.weak_axes`; 0 turns it off, and the polish fed its own
     prediction is kiss-icp's).
@@ -206,8 +207,13 @@ class KissIcpPolish:
         keep_prediction: bool = True,
         adapt_voxel: bool = True,
         weak_share: float = WEAK_AXIS_SHARE,
+        voxel_size: float | None = None,
     ) -> None:
         self.config = config or polish_kiss_config()
+        if voxel_size is not None:
+            if not voxel_size > 0:
+                raise ConfigError(f"the kiss-icp polish's voxel must be positive, got {voxel_size!r} m")
+            self.config, adapt_voxel = with_voxel(self.config, voxel_size), False
         self.keep_prediction = keep_prediction
         self.weak_share = weak_share
         self.kiss = GuidedKissICP(self.config, self.weak_share)

@@ -18,12 +18,12 @@ from pydantic import Field
 
 from vcr_odom.data.base import LidarSequence, Points
 from vcr_odom.data.selection import FrameSelection
-from vcr_odom.errors import VcrOdomError
+from vcr_odom.errors import ConfigError, VcrOdomError
 from vcr_odom.geometry import Transform
 from vcr_odom.mapping import VoxelMap, check_map_outside_scans, check_map_path
 from vcr_odom.metrics import EvaluationReport, evaluate
 from vcr_odom.odometry.chain import Consult, Odometry
-from vcr_odom.odometry.factory import DEFAULT_CONSULT, build_odometry, canonical_spec
+from vcr_odom.odometry.factory import DEFAULT_CONSULT, build_odometry, canonical_spec, parse_method_spec
 from vcr_odom.odometry.limits import InitialGuess
 from vcr_odom.odometry.loop import OdometryRun, run_odometry
 from vcr_odom.odometry.outputs import Checkpoints, ground_truth_for, run_summary, save_trajectory
@@ -61,6 +61,7 @@ class RunSettings(Settings):
     vcr_passes: int | None = Field(default=None, ge=1)
     vcr_points: int | None = Field(default=None, ge=4)
     consult: Consult = DEFAULT_CONSULT
+    polish_voxel: float | None = Field(default=None, gt=0)
     save_map: Path | None = None
     map_voxel: float = Field(default=0.5, ge=0.05)
     results_dir: Path = Path("results")
@@ -91,11 +92,25 @@ def vcr_options(
     return {"weights": weights, "device": device, "passes": passes, "num_points": points}
 
 
+def polish_options(settings: RunSettings) -> dict[str, object]:
+    """The polish's constructor options: ``polish_voxel`` for the kiss-icp polish (a ConfigError
+    naming ``--polish-voxel`` where the odometry has no such polish, rather than ignoring it)."""
+    if settings.polish_voxel is None:
+        return {}
+    if parse_method_spec(settings.spec)[1] != "kiss-icp":
+        raise ConfigError(
+            f"--polish-voxel applies to the kiss-icp polish, and {settings.spec} has none "
+            "(the kiss-icp polish is the default of vcr and fpfh, or +kiss-icp)"
+        )
+    return {"voxel_size": settings.polish_voxel}
+
+
 def method_for(settings: RunSettings) -> Odometry | SequentialOdometry:
     """The odometry ``settings`` ask for (its weights loaded: a bad file fails here, before any folder)."""
     return build_odometry(
         settings.spec,
         initial_guess=settings.initial_guess,
+        polish_options=polish_options(settings),
         consult=settings.consult,
         **vcr_options(
             settings.method,
