@@ -182,7 +182,7 @@ def polish_voxel_option(function: F) -> F:
         default=None,
         help="The kiss-icp polish's map voxel [m] for the whole run, instead of the one chosen from "
         "the first frame's density. Finer suits small steps: on synthetic handheld Avia walks at 10 Hz "
-        "(0.14 m a frame) half the chosen 0.34 m cut the odometry's ATE 2-10x, the polish taking 1.6-3x "
+        "(0.14 m a frame) half the chosen 0.34 m cut the odometry's ATE 1.6-10x, the polish taking 1.5-3x "
         "as long (docs/usage.md).",
     )(function)
 
