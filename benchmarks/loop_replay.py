@@ -4,7 +4,7 @@ Not a test: run
 
     # once per sequence: the odometry as `map` runs it, with the nodes it records
     .venv/bin/python benchmarks/loop_replay.py record --sequence WORK/sequences/881 --out rec/881.pkl \
-        [--stride K] [--method vcr]
+        [--stride K] [--method vcr] [--polish-voxel V]
     # after each change under vcr_odom/loops: the loop phase on the recording, scored against the truth
     .venv/bin/python benchmarks/loop_replay.py replay rec/881.pkl [rec/898.pkl ...] [--json out.json] \
         [--set passage_attempts=1000 ...]
@@ -82,7 +82,9 @@ def _commit() -> str:
 def record(args: argparse.Namespace) -> None:
     folder: Path = args.sequence
     selection = FrameSelection(data_root=folder.parent.parent, seq=folder.name, stride=args.stride)
-    settings = MapSettings(selection=selection, method=args.method, results_dir=Path("unused"))
+    settings = MapSettings(
+        selection=selection, method=args.method, polish_voxel=args.polish_voxel, results_dir=Path("unused")
+    )
     sequence = selection.open()
     indices = selection.indices(sequence)
     odometry = method_for(settings)
@@ -100,6 +102,7 @@ def record(args: argparse.Namespace) -> None:
         "sequence": str(folder.resolve()),
         "stride": args.stride,
         "method": args.method,
+        "polish_voxel": args.polish_voxel,
         "network": {
             "weights": settings.weights,
             "device": settings.device,
@@ -285,6 +288,9 @@ def main() -> None:
     made.add_argument("--out", type=Path, required=True, help="the recording to write (.pkl)")
     made.add_argument("--stride", type=int, default=1)
     made.add_argument("--method", default="vcr")
+    made.add_argument(
+        "--polish-voxel", type=float, help="the kiss-icp polish's voxel [m] (map's --polish-voxel)"
+    )
     again = commands.add_parser("replay", help="the loop phase of this checkout on recordings")
     again.add_argument("recordings", type=Path, nargs="+")
     again.add_argument("--json", type=Path)
