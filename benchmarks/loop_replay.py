@@ -311,6 +311,8 @@ def main() -> None:
     if args.command == "replay":
         args.options_set = loop_options_set(args.options_set, parser)
     if args.command == "record":
+        if args.polish_voxel is not None and not args.polish_voxel > 0:
+            parser.error(f"--polish-voxel {args.polish_voxel}: expected a voxel above 0 m")
         record(args)
     else:
         replay(args)

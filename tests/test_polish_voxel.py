@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from vcr_odom.data import open_sequence
+from vcr_odom.errors import ConfigError
 from vcr_odom.odometry.polish import KissIcpPolish, polish_kiss_config
 from vcr_odom.odometry.polish_voxel import (
     MIN_REACH_VOXEL,
@@ -27,6 +28,7 @@ from vcr_odom.odometry.polish_voxel import (
     ring_structured,
     source_points,
 )
+from vcr_odom.odometry.run import RunSettings, method_for, polish_options
 from vcr_odom.synth import SensorConfig, SynthSequence
 
 
@@ -92,9 +94,6 @@ def test_the_polish_fixes_its_voxel_on_the_first_frame(adapt: bool) -> None:
 
 def test_a_voxel_given_is_kept_whatever_the_first_frame_says() -> None:
     """``--polish-voxel``: the user's grid for the whole run, built from the run settings."""
-    from vcr_odom.errors import ConfigError
-    from vcr_odom.odometry.run import RunSettings, method_for, polish_options
-
     sparse = _walls(0.25, np.random.default_rng(3))
     assert density_voxel(sparse, polish_kiss_config()) != pytest.approx(0.3)
     polish = KissIcpPolish(voxel_size=0.3)
