@@ -41,8 +41,9 @@ from vcr_odom.odometry.chain import DoubtRule
 MISS_M, MISS_DEG = 0.2, 1.0
 
 
-POLISH_FIELDS = {"adapt_voxel": bool}
-"""Variant fields that go to the polish instead of the doubt rule (``adapt_voxel:0``: kiss-icp's voxel)."""
+POLISH_FIELDS = {"adapt_voxel": bool, "point_to_plane": bool}
+"""Variant fields that go to the polish instead of the doubt rule (``adapt_voxel:0``: kiss-icp's voxel;
+``point_to_plane:0``: no point-to-plane finish on sparse scans)."""
 
 
 def parse_variant(text: str) -> tuple[str, DoubtRule, dict[str, Any]]:

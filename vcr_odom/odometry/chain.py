@@ -197,7 +197,8 @@ class Odometry:
                 self.polish.start(frame.polish)
                 voxel = getattr(self.polish, "voxel_size", None)  # kiss-icp's map grid, chosen by now
                 if voxel is not None:
-                    self.last_info = {"polish_voxel_m": voxel}
+                    plane = bool(getattr(self.polish, "point_to_plane", False))
+                    self.last_info = {"polish_voxel_m": voxel, "polish_point_to_plane": plane}
             return Step(self._pose.copy(), dict(self.last_info))
         seconds = frame.timestamp - previous.timestamp
         if self.consult == "on-doubt":

@@ -23,6 +23,7 @@ from scipy.spatial import cKDTree
 from vcr_odom.errors import ConfigError
 from vcr_odom.geometry import Transform, motion_difference, project_to_se3
 from vcr_odom.odometry.degeneracy import WEAK_AXIS_SHARE, hold_along, weak_axes
+from vcr_odom.odometry.plane_refinement import refine_point_to_plane, registration_normals
 
 NORMAL_RADIUS_VOXELS = 4.5
 """Surface normals for the weak axes are estimated within this many map voxels: three cells of the
@@ -96,6 +97,8 @@ class KissAttempt:
     prediction: Transform
     pose: Transform | None
     weak_axes: np.ndarray
+    normals: np.ndarray | None = None
+    """Surface normals at ``source`` where the fit is finished point to plane, else None."""
 
 
 class GuidedKissICP(KissICP):
@@ -103,14 +106,21 @@ class GuidedKissICP(KissICP):
     keep their start's position along the directions the frame cannot measure
     (:func:`~vcr_odom.odometry.degeneracy.weak_axes` under ``weak_share``; 0 turns that off).
 
-    With ``weak_share=0`` and fed its own prediction as the guess, it reproduces kiss-icp's poses
-    exactly (a test holds it to that).
+    ``point_to_plane``: each registration is finished point to plane
+    (:func:`~vcr_odom.odometry.plane_refinement.refine_point_to_plane`), for scans whose point-to-point fit
+    slides back at small steps.
+
+    With ``weak_share=0``, ``point_to_plane=False`` and fed its own prediction as the guess, it
+    reproduces kiss-icp's poses exactly (a test holds it to that).
     """
 
-    def __init__(self, config: KISSConfig, weak_share: float = WEAK_AXIS_SHARE) -> None:
+    def __init__(
+        self, config: KISSConfig, weak_share: float = WEAK_AXIS_SHARE, point_to_plane: bool = False
+    ) -> None:
         super().__init__(config)
         check_kiss_internals(self)
         self.weak_share = weak_share
+        self.point_to_plane = point_to_plane
         self.last_sigma = float("nan")
         self.last_source_points = 0
         self.last_weak_axes = 0
@@ -130,8 +140,11 @@ class GuidedKissICP(KissICP):
         sigma = float(self.adaptive_threshold.get_threshold())
         prediction = self.last_pose @ self.last_delta
         axes = weak_axes(source, NORMAL_RADIUS_VOXELS * self.config.mapping.voxel_size, self.weak_share)
-        pose = hold_along(self._align(source, prediction, sigma), prediction, axes) if align else None
-        return KissAttempt(frame, source, downsample, sigma, prediction, pose, axes)
+        normals = registration_normals(source, downsample) if self.point_to_plane else None
+        attempt = KissAttempt(frame, source, downsample, sigma, prediction, None, axes, normals)
+        if align:
+            attempt.pose = self._held_align(attempt, prediction)
+        return attempt
 
     def finish(self, attempt: KissAttempt, guess: Transform | None = None) -> tuple[Transform, str]:
         """Commit the frame: the prediction's result, or the result from ``guess`` (the frame's pose by
@@ -179,8 +192,14 @@ class GuidedKissICP(KissICP):
         return self.voxelize(self.preprocessor.preprocess(frame.raw, np.array([]), last_delta))
 
     def _held_align(self, attempt: KissAttempt, guess: Transform) -> Transform:
-        """The registration from ``guess``, holding its position along the frame's weak axes."""
-        return hold_along(self._align(attempt.source, guess, attempt.sigma), guess, attempt.weak_axes)
+        """The registration from ``guess`` (finished point to plane where the attempt has normals),
+        holding its position along the frame's weak axes."""
+        pose = self._align(attempt.source, guess, attempt.sigma)
+        if attempt.normals is not None:
+            pose = refine_point_to_plane(
+                pose, attempt.source, attempt.normals, self.local_map.point_cloud(), attempt.sigma
+            )
+        return hold_along(pose, guess, attempt.weak_axes)
 
     def _align(self, source: np.ndarray, guess: Transform, sigma: float) -> Transform:
         """kiss-icp's registration step, as its ``register_frame`` calls it."""

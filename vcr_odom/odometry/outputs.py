@@ -157,6 +157,9 @@ def run_summary(run: OdometryRun) -> dict[str, Any]:
         "weak_axis_frames": run.weak_axis_frames,
         "polish_starts": polish_starts(run),
         "polish_voxel_m": run.per_frame_info[0].get("polish_voxel_m") if run.per_frame_info else None,
+        "polish_point_to_plane": (
+            run.per_frame_info[0].get("polish_point_to_plane") if run.per_frame_info else None
+        ),
         "global_registration": global_consultations(run),
         "wall_seconds": run.wall_seconds,
         "frames_per_second": run.frames_per_second,

@@ -29,7 +29,7 @@ from vcr_odom.odometry.guided_kiss import (
     motion_difference,
     within_basin,
 )
-from vcr_odom.odometry.polish_voxel import density_voxel, with_voxel
+from vcr_odom.odometry.polish_voxel import density_voxel, raw_sparse_scan, with_voxel
 from vcr_odom.registration.base import RegistrationResult
 from vcr_odom.registration.kiss import kiss_config, kiss_input
 from vcr_odom.registration.open3d_icp import Open3dIcp
@@ -193,7 +193,10 @@ class KissIcpPolish:
     this map voxel for the run instead (``--polish-voxel``; the density is not asked). ``weak_share``:
     a result keeps its start's position along the directions its frame cannot measure
     (:func:`~vcr_odom.odometry.degeneracy.weak_axes`; 0 turns it off, and the polish fed its own
-    prediction is kiss-icp's).
+    prediction is kiss-icp's). ``point_to_plane``: each fit is finished point to plane
+    (:mod:`~vcr_odom.odometry.plane_refinement`); None: where the first frame is a sparse scan that is
+    not a spinning sensor's rings (:func:`~vcr_odom.odometry.polish_voxel.raw_sparse_scan`: solid-state
+    scans, thinned keyframes), whose point-to-point fit slides back at small steps.
     """
 
     name = "kiss-icp"
@@ -208,17 +211,21 @@ class KissIcpPolish:
         adapt_voxel: bool = True,
         weak_share: float = WEAK_AXIS_SHARE,
         voxel_size: float | None = None,
+        point_to_plane: bool | None = None,
     ) -> None:
         self.config = config or polish_kiss_config()
+        self._kiss_own_config = self.config
         if voxel_size is not None:
             if not voxel_size > 0:
                 raise ConfigError(f"the kiss-icp polish's voxel must be positive, got {voxel_size!r} m")
             self.config, adapt_voxel = with_voxel(self.config, voxel_size), False
         self.keep_prediction = keep_prediction
         self.weak_share = weak_share
-        self.kiss = GuidedKissICP(self.config, self.weak_share)
+        self.point_to_plane = bool(point_to_plane)
+        self.kiss = self._new_map()
         self._preparer = KissFramePreparer(self.config)
         self._voxel_open = adapt_voxel
+        self._plane_open = point_to_plane is None
 
     def prepare(self, points: Points) -> KissFrame:
         """Finite xyz as float64 (as :class:`KissIcpOdometry` feeds kiss-icp), pre-processed and
@@ -228,8 +235,13 @@ class KissIcpPolish:
             warnings.warn(
                 "kiss-icp polish: empty frame, the global estimate is kept", DataWarning, stacklevel=3
             )
-        elif self._voxel_open:
-            self._choose_voxel(frame)
+        else:
+            if self._plane_open:
+                self._plane_open = False
+                self.point_to_plane = raw_sparse_scan(frame, self._kiss_own_config)
+                self.kiss = self._new_map()
+            if self._voxel_open:
+                self._choose_voxel(frame)
         return self._preparer(frame)
 
     def _choose_voxel(self, frame: np.ndarray) -> None:
@@ -238,8 +250,11 @@ class KissIcpPolish:
         voxel = density_voxel(frame, self.config)
         if voxel != self.config.mapping.voxel_size:
             self.config = with_voxel(self.config, voxel)
-            self.kiss = GuidedKissICP(self.config, self.weak_share)
+            self.kiss = self._new_map()
             self._preparer = KissFramePreparer(self.config)
+
+    def _new_map(self) -> GuidedKissICP:
+        return GuidedKissICP(self.config, self.weak_share, self.point_to_plane)
 
     @property
     def voxel_size(self) -> float:
@@ -248,7 +263,7 @@ class KissIcpPolish:
 
     def start(self, frame: KissFrame) -> None:
         """A new map, seeded with the first frame at the identity."""
-        self.kiss = GuidedKissICP(self.config, self.weak_share)
+        self.kiss = self._new_map()
         self.kiss.seed(frame, np.eye(4), np.eye(4))
 
     def refine(
@@ -303,7 +318,7 @@ class KissIcpPolish:
 
     def restart(self, frame: KissFrame, pose: Transform, motion: Transform) -> None:
         """A diverged map would drag every later frame: start a new one at ``pose @ motion``."""
-        self.kiss = GuidedKissICP(self.config, self.weak_share)
+        self.kiss = self._new_map()
         self.kiss.seed(frame, pose @ motion, motion)
 
 

@@ -65,10 +65,27 @@ def ring_structured(points: np.ndarray) -> bool:
 
 def median_spacing(points: np.ndarray) -> float:
     """Median distance from a point to its nearest neighbour."""
-    if len(points) < 2:
-        return 0.0
+    return float(np.median(_neighbour_distances(points))) if len(points) >= 2 else 0.0
+
+
+THINNED_SHARE = 0.4
+"""A cloud whose closest tenth of nearest-neighbour distances lies at this share of their median or more
+was thinned on a grid, which keeps no two points much closer than its cells (synthetic keyframes
+voxel-thinned to 0.15-0.3 m: 0.48-0.52); a raw scan's points bunch where its pattern crosses itself
+(33 solid-state first frames: 0.17-0.34)."""
+
+
+def thinned(points: np.ndarray) -> bool:
+    """Whether ``points`` were thinned on a grid (a SLAM system's keyframe cloud), not a raw scan."""
+    if len(points) < 10:
+        return False
+    closest_tenth, median = np.percentile(_neighbour_distances(points), [10, 50])
+    return bool(closest_tenth >= THINNED_SHARE * median)
+
+
+def _neighbour_distances(points: np.ndarray) -> np.ndarray:
     distances, _ = cKDTree(points).query(points, k=2)
-    return float(np.median(distances[:, 1]))
+    return distances[:, 1]
 
 
 REACH_PERCENTILE = 99.0
@@ -118,9 +135,21 @@ def density_voxel(frame: np.ndarray, config: KISSConfig) -> float:
     if len(cropped) == 0:
         return voxel
     scene_voxel = reach_voxel(cropped, voxel)
-    if source_points(cropped, voxel) >= SPARSE_SOURCE_POINTS or ring_structured(cropped):
+    if not _sparse(cropped, voxel):
         return scene_voxel
     return min(scene_voxel, _sparse_voxel(cropped, voxel))
+
+
+def raw_sparse_scan(frame: np.ndarray, config: KISSConfig) -> bool:
+    """Whether ``frame`` leaves kiss-icp's registration few points at ``config``'s voxel and is neither a
+    spinning scan's rings nor a cloud thinned on a grid: a raw solid-state scan, whose point-to-point
+    fit slides (:mod:`~vcr_odom.odometry.plane_refinement`)."""
+    cropped = get_preprocessor(config).preprocess(frame, np.array([]), np.eye(4))
+    return len(cropped) > 0 and _sparse(cropped, float(config.mapping.voxel_size)) and not thinned(cropped)
+
+
+def _sparse(cropped: np.ndarray, voxel: float) -> bool:
+    return source_points(cropped, voxel) < SPARSE_SOURCE_POINTS and not ring_structured(cropped)
 
 
 def _sparse_voxel(cropped: np.ndarray, voxel: float) -> float:
