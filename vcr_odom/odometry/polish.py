@@ -194,9 +194,9 @@ class KissIcpPolish:
     a result keeps its start's position along the directions its frame cannot measure
     (:func:`~vcr_odom.odometry.degeneracy.weak_axes`; 0 turns it off, and the polish fed its own
     prediction is kiss-icp's). ``point_to_plane``: each fit is finished point to plane
-    (:mod:`~vcr_odom.odometry.plane_refinement`); None: where the first frame is a sparse scan that is
-    not a spinning sensor's rings (:func:`~vcr_odom.odometry.polish_voxel.raw_sparse_scan`: solid-state
-    scans, thinned keyframes), whose point-to-point fit slides back at small steps.
+    (:mod:`~vcr_odom.odometry.plane_refinement`); None: where the first frame is a raw sparse scan
+    (:func:`~vcr_odom.odometry.polish_voxel.raw_sparse_scan`: solid-state, neither a spinning sensor's
+    rings nor a keyframe cloud thinned on a grid), whose point-to-point fit slides back.
     """
 
     name = "kiss-icp"
