@@ -2,7 +2,7 @@
 
 kiss-icp registers each frame's points to the nearest points of its local map. On a solid-state scan
 (few registration points, a narrow or nodding field) at a walk's small steps that fit slides back
-towards standing still, in stretches of a few frames where the step comes out 40-120 % short, though
+towards standing still, in stretches of a few frames where the step comes out 40-125 % short, though
 the surfaces face the way of travel: point-to-point ICP between two such frames started from the truth
 slides the same way, point-to-plane does not (docs/benchmarks.md, "A point-to-plane finish for
 solid-state scans"). The finish measures each registration point's distance to the map along that
