@@ -176,14 +176,23 @@ def initial_guess_option(function: F) -> F:
 
 
 def polish_voxel_option(function: F) -> F:
+    """``--polish-voxel`` and ``--point-to-plane``: the kiss-icp polish's grid and its finish."""
+    function = click.option(
+        "--point-to-plane",
+        type=click.Choice(["auto", "on", "off"]),
+        default="auto",
+        show_default=True,
+        help="Finish the kiss-icp polish's point-to-point fits point to plane: auto where the first "
+        "frame is a raw sparse scan (solid-state; not spinning rings, not grid-thinned keyframes), "
+        "where kiss-icp's fit slides back towards standing still; on: always; off: never "
+        "(docs/usage.md).",
+    )(function)
     return click.option(
         "--polish-voxel",
         type=click.FloatRange(min=0.02),
         default=None,
         help="The kiss-icp polish's map voxel [m] for the whole run, instead of the one chosen from "
-        "the first frame's density. Finer suits small steps: on synthetic handheld Avia walks at 10 Hz "
-        "(0.14 m a frame) half the chosen 0.34 m cut the odometry's ATE 1.6-10x, the polish taking 1.5-3x "
-        "as long (docs/usage.md).",
+        "the first frame's density and reach (docs/usage.md).",
     )(function)
 
 

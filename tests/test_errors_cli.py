@@ -74,6 +74,19 @@ def test_a_polish_voxel_without_the_kiss_icp_polish_is_refused_before_the_run(
         assert_fails(result, 2, "--polish-voxel", f"and {method} has none")
         assert no_results(results)
     assert_fails(invoke("run", "--data-root", synthetic_root, "--polish-voxel", "0"), 2, "--polish-voxel")
+    result = invoke(
+        "run",
+        "--data-root",
+        synthetic_root,
+        "--method",
+        "icp",
+        "--point-to-plane",
+        "on",
+        "--results-dir",
+        results,
+    )
+    assert_fails(result, 2, "--point-to-plane", "and icp has none")
+    assert no_results(results)
 
 
 def test_a_library_error_is_exit_1_in_one_line(synthetic_root: Path, tmp_path: Path) -> None:

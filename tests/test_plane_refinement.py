@@ -157,7 +157,7 @@ def test_a_runs_metrics_say_whether_the_polish_finished_point_to_plane(
     small_synthetic_root: Path, tmp_path: Path
 ) -> None:
     from vcr_odom.data.selection import FrameSelection
-    from vcr_odom.odometry.run import RunSettings, run_sequence
+    from vcr_odom.odometry.run import RunSettings, polish_options, run_sequence
 
     selection = FrameSelection(data_root=small_synthetic_root, seq="00")
     outcome = run_sequence(
@@ -167,3 +167,17 @@ def test_a_runs_metrics_say_whether_the_polish_finished_point_to_plane(
     expected = raw_sparse_scan(first.astype(np.float64), polish_kiss_config())
     metrics = json.loads((outcome.folder / "metrics.json").read_text())
     assert metrics["run"]["polish_point_to_plane"] is expected
+    for choice in ("on", "off"):  # --point-to-plane: the user's choice wins over the first frame
+        forced = run_sequence(
+            RunSettings(
+                selection=selection,
+                method="icp10",
+                polish="kiss-icp",
+                results_dir=tmp_path,
+                point_to_plane=choice,
+            )
+        )
+        forced_metrics = json.loads((forced.folder / "metrics.json").read_text())
+        assert forced_metrics["run"]["polish_point_to_plane"] is (choice == "on")
+    assert polish_options(RunSettings(method="vcr", point_to_plane="off")) == {"point_to_plane": False}
+    assert polish_options(RunSettings(method="vcr")) == {}

@@ -12,7 +12,7 @@ from collections.abc import Callable, Sequence
 from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from pydantic import Field
 
@@ -62,6 +62,7 @@ class RunSettings(Settings):
     vcr_points: int | None = Field(default=None, ge=4)
     consult: Consult = DEFAULT_CONSULT
     polish_voxel: float | None = Field(default=None, gt=0)
+    point_to_plane: Literal["auto", "on", "off"] = "auto"
     save_map: Path | None = None
     map_voxel: float = Field(default=0.5, ge=0.05)
     results_dir: Path = Path("results")
@@ -93,16 +94,21 @@ def vcr_options(
 
 
 def polish_options(settings: RunSettings) -> dict[str, object]:
-    """The polish's constructor options: ``polish_voxel`` for the kiss-icp polish (a ConfigError
-    naming ``--polish-voxel`` where the odometry has no such polish, rather than ignoring it)."""
-    if settings.polish_voxel is None:
-        return {}
-    if parse_method_spec(settings.spec)[1] != "kiss-icp":
+    """The polish's constructor options: ``polish_voxel`` and ``point_to_plane`` for the kiss-icp
+    polish (a ConfigError naming the option where the odometry has no such polish, rather than
+    ignoring it)."""
+    options: dict[str, object] = {}
+    if settings.polish_voxel is not None:
+        options["voxel_size"] = settings.polish_voxel
+    if settings.point_to_plane != "auto":
+        options["point_to_plane"] = settings.point_to_plane == "on"
+    if options and parse_method_spec(settings.spec)[1] != "kiss-icp":
+        option = "--polish-voxel" if settings.polish_voxel is not None else "--point-to-plane"
         raise ConfigError(
-            f"--polish-voxel applies to the kiss-icp polish, and {settings.spec} has none "
+            f"{option} applies to the kiss-icp polish, and {settings.spec} has none "
             "(the kiss-icp polish is the default of vcr and fpfh, or +kiss-icp)"
         )
-    return {"voxel_size": settings.polish_voxel}
+    return options
 
 
 def method_for(settings: RunSettings) -> Odometry | SequentialOdometry:
