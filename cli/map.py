@@ -8,7 +8,7 @@ from rich.table import Table
 from vcr_odom.cli.options import (
     describe_methods,
     initial_guess_option,
-    polish_voxel_option,
+    kiss_polish_options,
     results_option,
     sequence_options,
     vcr_options,
@@ -113,7 +113,7 @@ FIELDS = MapSettings.model_fields
     "structures or on stairs.",
 )
 @initial_guess_option
-@polish_voxel_option
+@kiss_polish_options
 @vcr_options
 @results_option
 @click.pass_context

@@ -175,7 +175,7 @@ def initial_guess_option(function: F) -> F:
     )(function)
 
 
-def polish_voxel_option(function: F) -> F:
+def kiss_polish_options(function: F) -> F:
     """``--polish-voxel`` and ``--point-to-plane``: the kiss-icp polish's grid and its finish."""
     function = click.option(
         "--point-to-plane",

@@ -10,7 +10,7 @@ import click
 from vcr_odom.cli.options import (
     describe_methods,
     initial_guess_option,
-    polish_voxel_option,
+    kiss_polish_options,
     results_option,
     sequence_options,
     vcr_options,
@@ -98,7 +98,7 @@ def given(ctx: click.Context, name: str) -> bool:
     "--map-voxel", type=click.FloatRange(min=0.05), default=0.5, show_default=True, help="Map voxel size [m]."
 )
 @initial_guess_option
-@polish_voxel_option
+@kiss_polish_options
 @vcr_options
 @results_option
 @click.pass_context
