@@ -235,23 +235,20 @@ class KissIcpPolish:
             warnings.warn(
                 "kiss-icp polish: empty frame, the global estimate is kept", DataWarning, stacklevel=3
             )
-        else:
-            if self._plane_open:
-                self._plane_open = False
-                self.point_to_plane = raw_sparse_scan(frame, self._kiss_own_config)
-                self.kiss = self._new_map()
-            if self._voxel_open:
-                self._choose_voxel(frame)
+        elif self._plane_open or self._voxel_open:
+            self._decide_on_first_frame(frame)
         return self._preparer(frame)
 
-    def _choose_voxel(self, frame: np.ndarray) -> None:
-        """The first non-empty frame fixes the map voxel for the run (kiss-icp's map keeps one grid)."""
-        self._voxel_open = False
-        voxel = density_voxel(frame, self.config)
-        if voxel != self.config.mapping.voxel_size:
-            self.config = with_voxel(self.config, voxel)
-            self.kiss = self._new_map()
+    def _decide_on_first_frame(self, frame: np.ndarray) -> None:
+        """The first non-empty frame fixes the map voxel (kiss-icp's map keeps one grid) and whether
+        fits are finished point to plane, for the whole run."""
+        if self._plane_open:
+            self.point_to_plane = raw_sparse_scan(frame, self._kiss_own_config)
+        if self._voxel_open:
+            self.config = with_voxel(self.config, density_voxel(frame, self.config))
             self._preparer = KissFramePreparer(self.config)
+        self._plane_open = self._voxel_open = False
+        self.kiss = self._new_map()
 
     def _new_map(self) -> GuidedKissICP:
         return GuidedKissICP(self.config, self.weak_share, self.point_to_plane)
