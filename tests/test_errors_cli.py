@@ -87,6 +87,12 @@ def test_a_polish_voxel_without_the_kiss_icp_polish_is_refused_before_the_run(
     )
     assert_fails(result, 2, "--point-to-plane", "and icp has none")
     assert no_results(results)
+    result = invoke(
+        "compare", "--data-root", synthetic_root, "-b", "icp", "-b", "kiss-icp", "-b", "vcr+icp",
+        "--point-to-plane", "off", "--polish-voxel", "0.3", "--results-dir", results,
+    )  # fmt: skip
+    assert_fails(result, 2, "--polish-voxel, --point-to-plane", "icp, kiss-icp, vcr+icp")
+    assert no_results(results)
 
 
 def test_a_library_error_is_exit_1_in_one_line(synthetic_root: Path, tmp_path: Path) -> None:

@@ -181,3 +181,24 @@ def test_a_runs_metrics_say_whether_the_polish_finished_point_to_plane(
         assert forced_metrics["run"]["polish_point_to_plane"] is (choice == "on")
     assert polish_options(RunSettings(method="vcr", point_to_plane="off")) == {"point_to_plane": False}
     assert polish_options(RunSettings(method="vcr")) == {}
+
+
+@pytest.mark.filterwarnings("ignore:.*no timestamps")
+def test_compare_hands_the_polish_options_to_the_rows_with_a_kiss_icp_polish_only(
+    small_synthetic_root: Path, tmp_path: Path
+) -> None:
+    from click.testing import CliRunner
+
+    from vcr_odom.cli.main import cli
+
+    args = ["compare", "--data-root", small_synthetic_root, "-b", "icp10+kiss-icp", "-b", "kiss-icp"]
+    args += ["--frames", ":4", "--point-to-plane", "on", "--polish-voxel", "0.6", "--results-dir", tmp_path]
+    result = CliRunner().invoke(cli, [str(a) for a in args])
+    assert result.exit_code == 0, result.output
+    folder = (tmp_path / "latest").resolve()
+    polished = json.loads((folder / "icp10+kiss-icp" / "metrics.json").read_text())["run"]
+    assert polished["polish_point_to_plane"] is True and polished["polish_voxel_m"] == 0.6
+    baseline = json.loads((folder / "kiss-icp" / "metrics.json").read_text())["run"]
+    assert baseline["polish_point_to_plane"] is None and baseline["polish_voxel_m"] is None
+    config = json.loads((folder / "config.json").read_text())["config"]
+    assert config["point_to_plane"] == "on" and config["polish_voxel"] == 0.6

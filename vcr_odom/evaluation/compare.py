@@ -27,11 +27,11 @@ from vcr_odom.loops.spec import canonical_row, split_loops
 from vcr_odom.metrics import EvaluationReport
 from vcr_odom.model.weights import default_weights_path, read_weights
 from vcr_odom.odometry.chain import Consult, Odometry
-from vcr_odom.odometry.factory import DEFAULT_CONSULT, build_odometry
+from vcr_odom.odometry.factory import DEFAULT_CONSULT, build_odometry, parse_method_spec
 from vcr_odom.odometry.limits import InitialGuess
 from vcr_odom.odometry.loop import OdometryRun
 from vcr_odom.odometry.outputs import ground_truth_for, run_summary
-from vcr_odom.odometry.run import ProgressFactory, run_and_save, vcr_options
+from vcr_odom.odometry.run import ProgressFactory, kiss_polish_options, run_and_save, vcr_options
 from vcr_odom.plots import plot_trajectories
 from vcr_odom.preprocess import PreprocessConfig
 from vcr_odom.registration import SEQUENTIAL_METHODS
@@ -76,11 +76,20 @@ class CompareSettings(Settings):
     vcr_passes: int | None = Field(default=None, ge=1)
     vcr_points: int | None = Field(default=None, ge=4)
     consult: Consult = DEFAULT_CONSULT
+    polish_voxel: float | None = Field(default=None, gt=0)
+    point_to_plane: Literal["auto", "on", "off"] = "auto"
     results_dir: Path = Path("results")
 
     def method_options(self, spec: str) -> dict[str, Any]:
         method = spec.partition("+")[0].strip().lower()
         return vcr_options(method, self.weights, self.device, self.vcr_passes, self.vcr_points)
+
+    def polish_options(self, spec: str) -> dict[str, object]:
+        """``polish_voxel`` and ``point_to_plane`` for a row with the kiss-icp polish; none for the
+        others (the kiss-icp baseline, kiss-slam and the other polishes keep their own)."""
+        if parse_method_spec(spec)[1] != "kiss-icp":
+            return {}
+        return kiss_polish_options(self.polish_voxel, self.point_to_plane)
 
 
 @dataclass
@@ -202,6 +211,7 @@ def _build(spec: str, settings: CompareSettings) -> Method:
             base,
             initial_guess=settings.initial_guess,
             consult=settings.consult,
+            polish_options=settings.polish_options(base),
             **settings.method_options(base),
         )
     except MissingExtraError as error:

@@ -93,15 +93,21 @@ def vcr_options(
     return {"weights": weights, "device": device, "passes": passes, "num_points": points}
 
 
-def polish_options(settings: RunSettings) -> dict[str, object]:
-    """The polish's constructor options: ``polish_voxel`` and ``point_to_plane`` for the kiss-icp
-    polish (a ConfigError naming the option where the odometry has no such polish, rather than
-    ignoring it)."""
+def kiss_polish_options(polish_voxel: float | None, point_to_plane: str) -> dict[str, object]:
+    """The kiss-icp polish's constructor options for ``--polish-voxel`` and ``--point-to-plane``
+    (``auto`` and no voxel give none: the polish decides on the first frame)."""
     options: dict[str, object] = {}
-    if settings.polish_voxel is not None:
-        options["voxel_size"] = settings.polish_voxel
-    if settings.point_to_plane != "auto":
-        options["point_to_plane"] = settings.point_to_plane == "on"
+    if polish_voxel is not None:
+        options["voxel_size"] = polish_voxel
+    if point_to_plane != "auto":
+        options["point_to_plane"] = point_to_plane == "on"
+    return options
+
+
+def polish_options(settings: RunSettings) -> dict[str, object]:
+    """The polish's constructor options (:func:`kiss_polish_options`); a ConfigError naming the
+    option where the odometry has no kiss-icp polish, rather than ignoring it."""
+    options = kiss_polish_options(settings.polish_voxel, settings.point_to_plane)
     if options and parse_method_spec(settings.spec)[1] != "kiss-icp":
         option = "--polish-voxel" if settings.polish_voxel is not None else "--point-to-plane"
         raise ConfigError(
