@@ -12,7 +12,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from vcr_odom.geometry import invert, make_transform, rotation_angle, rotation_from_euler_zyx
-from vcr_odom.loops.cycles import loop_cycles, odometry_scale
+from vcr_odom.loops.cycles import OUTLIER_SCALE_FLOOR, cycle_outliers, loop_cycles, odometry_scale
 from vcr_odom.loops.drift import DriftModel
 from vcr_odom.loops.graph import LOOP_SHARE, LoopEdge, loop_share, optimise
 from vcr_odom.loops.nodes import Node
@@ -103,6 +103,26 @@ def test_a_noisy_odometry_keeps_its_right_loops_and_drops_a_block_away() -> None
     after = np.mean([apart(result.node_poses, loop.source, loop.target) for loop in right])
     assert after < before / 4  # the two laps pulled together (5.5 -> 0.7 m)
     assert apart(result.node_poses, 75, 25) < 10.0  # not a block (30 m) off; the odometry alone leaves 4 m
+
+
+@pytest.mark.parametrize("seed", [7, 8])
+def test_an_odometry_better_than_the_model_judges_the_cycles_by_what_they_measured(seed: int) -> None:
+    """Odometry three times better than the drift model (a solid-state drive with the point-to-plane
+    finish): most cycles of a loop 1 m off sideways close within 3 of the model's sigmas, but far beyond
+    what the right loops' cycles measure; it is dropped by its cycles, and the right loops are all kept."""
+    truth, nodes = _noisy_circle(0.3, seed)
+    right = _true_loops(truth)
+    sideways = make_transform(np.eye(3), [0.0, 1.0, 0.0])
+    slid = LoopEdge(75, 15, sideways @ invert(truth[15]) @ truth[75], LOOP_INFORMATION)
+    cycles = loop_cycles(nodes, [*right, slid], _sigmas(nodes))
+    scale = odometry_scale(cycles)
+    assert scale.scale == 1.0 and scale.median_ratio is not None and scale.median_ratio < 0.5
+    assert not cycle_outliers(cycles, 1.0), "judged by the model's sigmas, most of its cycles close"
+    assert scale.outlier_scale == OUTLIER_SCALE_FLOOR
+    result = optimise(nodes, [*right, slid])
+    assert list(result.cycle_outliers) == [len(right)]
+    assert result.kept == [True] * len(right) + [False]
+    assert not optimise(nodes, right).cycle_outliers
 
 
 def test_two_loops_that_agree_outvote_a_corroborated_one_that_slid() -> None:

@@ -153,7 +153,7 @@ def optimise(
     sigmas = drift.chain_sigmas(odometry, frames)
     cycles = loop_cycles(nodes, loops, sigmas)
     scale = odometry_scale(cycles)
-    outliers = cycle_outliers(cycles, scale.scale)
+    outliers = cycle_outliers(cycles, scale.outlier_scale)
     edges: list[GraphEdge] = [*loops, *up.edges]
     trusted = _trusted(edges, len(cycles))
     weights = [0.0 if k in outliers else 1.0 for k in range(len(edges))]
