@@ -202,3 +202,21 @@ def test_compare_hands_the_polish_options_to_the_rows_with_a_kiss_icp_polish_onl
     assert baseline["polish_point_to_plane"] is None and baseline["polish_voxel_m"] is None
     config = json.loads((folder / "config.json").read_text())["config"]
     assert config["point_to_plane"] == "on" and config["polish_voxel"] == 0.6
+
+
+def test_compare_called_from_python_refuses_polish_options_no_row_can_take(
+    small_synthetic_root: Path, tmp_path: Path
+) -> None:
+    from vcr_odom.data.selection import FrameSelection
+    from vcr_odom.errors import ConfigError
+    from vcr_odom.evaluation.compare import CompareSettings, run_comparison
+
+    settings = CompareSettings(
+        selection=FrameSelection(data_root=small_synthetic_root, seq="00"),
+        methods=("icp10", "kiss-icp"),
+        point_to_plane="on",
+        results_dir=tmp_path / "results",
+    )
+    with pytest.raises(ConfigError, match="--point-to-plane applies to the kiss-icp polish"):
+        run_comparison(settings)
+    assert not (tmp_path / "results").exists()

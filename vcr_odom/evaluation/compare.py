@@ -148,6 +148,7 @@ def run_comparison(settings: CompareSettings, progress: ProgressFactory | None =
     plot and the marker) is published at the end, or, stopped part-way, with a ``partial`` marker.
     """
     specs = list(dict.fromkeys(canonical_row(s) for s in settings.methods))  # a bad name fails here
+    _check_polish_options(settings, specs)
     check_output_folder(settings.results_dir, "--results-dir")
     sequence = settings.selection.open()
     indices = settings.selection.indices(sequence)
@@ -219,6 +220,22 @@ def _build(spec: str, settings: CompareSettings) -> Method:
     if not mapped:
         return odometry
     return Mapped(odometry, loop_network(settings.weights, settings.device, settings.vcr_points, odometry))
+
+
+def _check_polish_options(settings: CompareSettings, specs: list[str]) -> None:
+    """The kiss-icp polish's options with no row that has that polish would be ignored: an error
+    naming them instead (the CLI says the same as a usage error)."""
+    given = kiss_polish_options(settings.polish_voxel, settings.point_to_plane)
+    if given and not any(settings.polish_options(split_loops(spec)[0]) for spec in specs):
+        names = ", ".join(
+            "--" + name.replace("_", "-")
+            for name in ("polish_voxel", "point_to_plane")
+            if getattr(settings, name) not in (None, "auto")
+        )
+        raise ConfigError(
+            f"{names} applies to the kiss-icp polish, and none of {', '.join(specs)} has it "
+            "(the kiss-icp polish is the default of vcr and fpfh, or +kiss-icp)"
+        )
 
 
 def pair_kinds_to_run(settings: CompareSettings, sequence: LidarSequence) -> tuple[str, ...]:
