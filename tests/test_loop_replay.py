@@ -125,6 +125,8 @@ def test_a_replay_keeps_the_loops_map_closed_on_a_walk(tmp_path: Path) -> None:
     assert row["candidates"] == len(loops["candidates"])
     scale = metrics["loops"]["odometry_sigma_scale"]
     assert scale["final_loop_share"] == loop_share(metrics["loops"]["accepted"], scale["cycles"])
+    expected_outlier_scale = 1.0 if scale["median_ratio"] is None else max(scale["median_ratio"], 0.5)
+    assert abs(scale["outlier_scale"] - expected_outlier_scale) <= 1e-3
     assert abs(row["map_ate_m"] - metrics["ate_rpe"]["ate_se3_trans_rmse_m"]) < 1e-3
 
 

@@ -118,7 +118,7 @@ def test_an_odometry_better_than_the_model_judges_the_cycles_by_what_they_measur
     scale = odometry_scale(cycles)
     assert scale.scale == 1.0 and scale.median_ratio is not None and scale.median_ratio < 0.5
     assert not cycle_outliers(cycles, 1.0), "judged by the model's sigmas, most of its cycles close"
-    assert scale.outlier_scale == OUTLIER_SCALE_FLOOR
+    assert scale.outlier_scale == OUTLIER_SCALE_FLOOR == scale.to_dict()["outlier_scale"]  # metrics.json
     result = optimise(nodes, [*right, slid])
     assert list(result.cycle_outliers) == [len(right)]
     assert result.kept == [True] * len(right) + [False]

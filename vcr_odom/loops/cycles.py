@@ -74,7 +74,12 @@ class OdometryScale:
 
     def to_dict(self) -> dict[str, object]:
         ratio = None if self.median_ratio is None else round(self.median_ratio, 3)
-        return {"scale": round(self.scale, 3), "cycles": self.cycles, "median_ratio": ratio}
+        return {
+            "scale": round(self.scale, 3),
+            "cycles": self.cycles,
+            "median_ratio": ratio,
+            "outlier_scale": round(self.outlier_scale, 3),
+        }
 
 
 def loop_cycles(
