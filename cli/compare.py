@@ -47,22 +47,6 @@ def reject_bad_combinations(ctx: click.Context, protocol: str, specs: tuple[str,
                 ctx=ctx,
             )
     reject_unused_options(ctx, specs)
-    polish = [
-        flag for flag in ("--polish-voxel", "--point-to-plane") if given(ctx, flag[2:].replace("-", "_"))
-    ]
-    if polish and not any(_has_kiss_polish(spec) for spec in specs):
-        raise click.UsageError(
-            f"{', '.join(polish)} only {'applies' if len(polish) == 1 else 'apply'} to the kiss-icp polish "
-            f"(the default of vcr and fpfh, or +kiss-icp), and no method given has it: {', '.join(specs)}",
-            ctx=ctx,
-        )
-
-
-def _has_kiss_polish(spec: str) -> bool:
-    try:
-        return parse_row_spec(spec)[1] == "kiss-icp"
-    except ConfigError:
-        return False  # the method itself is the mistake; its own check says so
 
 
 @click.command("compare", epilog=describe_methods() + "\n\n" + EXIT_CODES_HELP)

@@ -223,18 +223,20 @@ def _build(spec: str, settings: CompareSettings) -> Method:
 
 
 def _check_polish_options(settings: CompareSettings, specs: list[str]) -> None:
-    """The kiss-icp polish's options with no row that has that polish would be ignored: an error
-    naming them instead (the CLI says the same as a usage error)."""
-    given = kiss_polish_options(settings.polish_voxel, settings.point_to_plane)
-    if given and not any(settings.polish_options(split_loops(spec)[0]) for spec in specs):
-        names = ", ".join(
-            "--" + name.replace("_", "-")
-            for name in ("polish_voxel", "point_to_plane")
-            if getattr(settings, name) not in (None, "auto")
+    """The kiss-icp polish's options with no row that has that polish would be ignored: a ConfigError
+    (the CLI's usage error) naming them instead, before any folder is made."""
+    given = [
+        flag
+        for flag, set_ in (
+            ("--polish-voxel", settings.polish_voxel is not None),
+            ("--point-to-plane", settings.point_to_plane != "auto"),
         )
+        if set_
+    ]
+    if given and not any(settings.polish_options(split_loops(spec)[0]) for spec in specs):
         raise ConfigError(
-            f"{names} applies to the kiss-icp polish, and none of {', '.join(specs)} has it "
-            "(the kiss-icp polish is the default of vcr and fpfh, or +kiss-icp)"
+            f"{', '.join(given)} {'applies' if len(given) == 1 else 'apply'} to the kiss-icp polish, "
+            f"and none of {', '.join(specs)} has it (the default of vcr and fpfh, or +kiss-icp)"
         )
 
 
