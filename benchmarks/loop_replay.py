@@ -4,7 +4,7 @@ Not a test: run
 
     # once per sequence: the odometry as `map` runs it, with the nodes it records
     .venv/bin/python benchmarks/loop_replay.py record --sequence WORK/sequences/881 --out rec/881.pkl \
-        [--stride K] [--method vcr] [--polish-voxel V]
+        [--stride K] [--method vcr] [--polish-voxel V] [--point-to-plane auto|on|off]
     # after each change under vcr_odom/loops: the loop phase on the recording, scored against the truth
     .venv/bin/python benchmarks/loop_replay.py replay rec/881.pkl [rec/898.pkl ...] [--json out.json] \
         [--set passage_attempts=1000 ...]
@@ -83,7 +83,11 @@ def record(args: argparse.Namespace) -> None:
     folder: Path = args.sequence
     selection = FrameSelection(data_root=folder.parent.parent, seq=folder.name, stride=args.stride)
     settings = MapSettings(
-        selection=selection, method=args.method, polish_voxel=args.polish_voxel, results_dir=Path("unused")
+        selection=selection,
+        method=args.method,
+        polish_voxel=args.polish_voxel,
+        point_to_plane=args.point_to_plane,
+        results_dir=Path("unused"),
     )
     sequence = selection.open()
     indices = selection.indices(sequence)
@@ -103,6 +107,7 @@ def record(args: argparse.Namespace) -> None:
         "stride": args.stride,
         "method": args.method,
         "polish_voxel": args.polish_voxel,
+        "point_to_plane": args.point_to_plane,
         "network": {
             "weights": settings.weights,
             "device": settings.device,
@@ -290,6 +295,12 @@ def main() -> None:
     made.add_argument("--method", default="vcr")
     made.add_argument(
         "--polish-voxel", type=float, help="the kiss-icp polish's voxel [m] (map's --polish-voxel)"
+    )
+    made.add_argument(
+        "--point-to-plane",
+        choices=("auto", "on", "off"),
+        default="auto",
+        help="the polish's point-to-plane finish (map's --point-to-plane)",
     )
     again = commands.add_parser("replay", help="the loop phase of this checkout on recordings")
     again.add_argument("recordings", type=Path, nargs="+")

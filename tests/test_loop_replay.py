@@ -67,6 +67,36 @@ def test_a_replay_scores_what_map_made_of_the_same_frames(small_synthetic_root: 
     assert len(row["right_loop_errors"]) + row["false_closures"] == row["accepted"]
 
 
+def test_a_recording_is_made_with_the_point_to_plane_finish_it_is_asked_for(
+    small_synthetic_root: Path, tmp_path: Path
+) -> None:
+    """`record --point-to-plane on` must record the odometry `run --point-to-plane on` makes (the finish
+    is off by default on this spinning sensor, so an option left unpassed would record another one)."""
+    from vcr_odom.data.selection import FrameSelection
+    from vcr_odom.geometry import camera_to_lidar_poses
+    from vcr_odom.io import read_kitti_poses
+
+    sequence = str(small_synthetic_root / "sequences" / "00")
+    recordings = {}
+    for finish in ("on", "off"):
+        out = tmp_path / f"{finish}.pkl"
+        recorded = _replay("record", "--sequence", sequence, "--out", str(out), "--point-to-plane", finish)
+        assert recorded.returncode == 0, recorded.stderr
+        recordings[finish] = pickle.loads(out.read_bytes())
+    assert recordings["on"]["point_to_plane"] == "on"
+
+    args = ["run", "--data-root", str(small_synthetic_root), "--seq", "00", "--point-to-plane", "on"]
+    result = CliRunner().invoke(cli, [*args, "--results-dir", str(tmp_path / "run")])
+    assert result.exit_code == 0, result.output
+    (folder,) = [p for p in (tmp_path / "run").iterdir() if p.name.startswith("20")]
+    tr = FrameSelection(data_root=small_synthetic_root, seq="00").open().tr_velo_to_cam
+    ran = read_kitti_poses(folder / "trajectory_kitti.txt")
+    ran = ran if tr is None else camera_to_lidar_poses(ran, tr)
+    finished, unfinished = (np.asarray(recordings[k]["poses"]) for k in ("on", "off"))
+    assert np.abs(finished[:, :3, :] - ran[:, :3, :]).max() < 1e-5
+    assert np.abs(finished - unfinished).max() > 1e-5, "the finish changed nothing: the test shows nothing"
+
+
 def test_a_file_that_is_not_a_recording_is_refused_by_name(tmp_path: Path) -> None:
     other = tmp_path / "other.pkl"
     other.write_bytes(pickle.dumps({"format": 0}))
