@@ -37,6 +37,7 @@ from vcr_odom.loops.candidates import (
 )
 from vcr_odom.loops.drift import DriftModel
 from vcr_odom.loops.graph import LoopEdge, correct_frames, factor_summary, optimise
+from vcr_odom.loops.implied_starts import reject_loops_ambiguous_from_implied_starts
 from vcr_odom.loops.nodes import NODE_SPACING_DEG, NODE_SPACING_M, Node, NodeNormals, NodeRecorder
 from vcr_odom.loops.odometry_doubts import OdometryDoubts, fit_sigma_factors
 from vcr_odom.loops.same_place import reject_disagreeing_submap_fits
@@ -370,6 +371,7 @@ def close_loops(
                 decisions.append(verifier.verify(candidate, nodes))
                 advance(candidate.source, candidate.prior)
         reject_disagreeing_submap_fits(decisions, nodes)
+        reject_loops_ambiguous_from_implied_starts(decisions, nodes, normals)
     phase.seconds["loops"] = time.perf_counter() - started
     started = time.perf_counter()
     edges = [

@@ -198,7 +198,7 @@ class LoopVerifier:
         else:  # the node's own cloud: its normals are the loop phase's
             source_cloud = self.normals.cloud(candidate.source)
         starts = {"network": network.transform @ turn, "odometry": candidate.prior}
-        fits = {name: _polish(source_cloud, target_cloud, start, scale) for name, start in starts.items()}
+        fits = {name: polish(source_cloud, target_cloud, start, scale) for name, start in starts.items()}
         started_m, started_deg = motion_difference(starts["network"], starts["odometry"])
         ranked = sorted(fits, key=lambda name: fits[name].fitness, reverse=True)
         if submaps:  # a crossing's submaps fit turned by 90 or 180 deg too: the odometry tells which
@@ -272,7 +272,7 @@ class LoopVerifier:
         cannot tell the submap fit's heading, and the check failed is returned as by :meth:`_judge`.
         Where it does not overlap, the submap fit stands, unless the submaps may be bent more than
         :data:`BENT_SUBMAP_DEG` (``bend_deg``): then nothing measured the fit's heading but the bend."""
-        own = _polish(cloud, target, decision.measured, scale)
+        own = polish(cloud, target, decision.measured, scale)
         overlaps = own.fitness >= OWN_SCAN_FITNESS
         within = self._within_bound(decision.candidate, own.transformation)
         decision.scores["own_scan_fitness"] = round(float(own.fitness), 4)
@@ -353,7 +353,7 @@ class LoopVerifier:
         for sign in (1.0, -1.0):
             start = measured.copy()
             start[:3, 3] += sign * PROBE_M * scale * direction
-            ended = _polish(source, target, start, scale)
+            ended = polish(source, target, start, scale)
             if ended.fitness >= fit.fitness - PROBE_FITNESS:
                 away = invert(np.asarray(ended.transformation)) @ measured
                 worst = max(worst, float(np.linalg.norm(away[:3, 3])))
@@ -431,9 +431,10 @@ def _correction(candidate: LoopCandidate, measured: Any) -> tuple[float, float]:
     return motion_difference(candidate.prior, np.asarray(measured, dtype=np.float64))
 
 
-def _polish(
+def polish(
     source: o3d.geometry.PointCloud, target: o3d.geometry.PointCloud, start: Transform, scale: float
 ) -> o3d.pipelines.registration.RegistrationResult:
+    """Point-to-plane ICP through :data:`POLISH_STAGES`, distances times ``scale``, from ``start``."""
     registration = o3d.pipelines.registration
     transform = np.asarray(start, dtype=np.float64)
     result = None

@@ -1,0 +1,93 @@
+"""A third start for a loop: where another loop near it, and the odometry between the two, put its
+source.
+
+Why: the verification polishes each candidate from two starts (the network's and the odometry's), and
+a place whose surfaces hardly face one way can take both into one wrong fit. On a courtyard walk
+(Avia, 2212) a fit 3.0 m off (480 -> 0, overlap 0.68) passed every check beside a right loop a few
+metres on (519 -> 66); their one cycle misclosed by 2.4 m, and one cycle cannot say which loop is
+wrong. Polished from where the right loop puts it, the false loop's source ends on the truth at an
+overlap of 0.56: the place has two fits that overlap cannot tell apart, the verification's own
+definition of ambiguous (:data:`~vcr_odom.loops.verify.AMBIGUITY`). The right loop, polished from
+where the false one puts it, ends 21 m away at 0.19: it is not ambiguous, and it stays.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from vcr_odom.geometry import Transform, invert, motion_difference
+from vcr_odom.loops.cycles import CYCLE_SPAN_M
+from vcr_odom.loops.decision import LoopDecision
+from vcr_odom.loops.nodes import CLOUD_VOXEL_M, Node, NodeNormals
+from vcr_odom.loops.verify import AMBIGUITY, MIN_DISTANCE_SCALE, polish
+
+
+def implied_start(loop: LoopDecision, other: LoopDecision, nodes: Sequence[Node]) -> Transform:
+    """``loop``'s ``T_target_source`` as ``other``'s measurement and the odometry between the two loops'
+    sources, and between their targets, put it."""
+    a, b = loop.candidate, other.candidate
+    assert other.measured is not None
+    placed_source = (
+        nodes[b.target].pose @ other.measured @ invert(nodes[b.source].pose) @ nodes[a.source].pose
+    )
+    return invert(nodes[a.target].pose) @ placed_source
+
+
+def reject_loops_ambiguous_from_implied_starts(
+    decisions: Sequence[LoopDecision], nodes: Sequence[Node], normals: NodeNormals
+) -> None:
+    """Turns away every accepted loop on its nodes' own clouds that, polished from where another
+    accepted loop within :data:`~vcr_odom.loops.cycles.CYCLE_SPAN_M` of path puts it (more than
+    :data:`~vcr_odom.loops.verify.AMBIGUITY`'s distance or turn from its own fit), ends that far from
+    its fit at an overlap within AMBIGUITY's margin of its own. Every verdict is taken against the loops
+    accepted before any is turned away, so two loops that make each other ambiguous both go."""
+    accepted = [d for d in decisions if d.accepted and d.measured is not None]
+    far_m, far_deg, close_fitness = AMBIGUITY
+    rejected: list[tuple[LoopDecision, LoopDecision, float, float, float]] = []
+    for loop in accepted:
+        if loop.scores.get("submaps"):
+            continue  # its clouds are submaps; a node's own cloud measures something else
+        source = nodes[loop.candidate.source]
+        scale = max(source.cloud_voxel / CLOUD_VOXEL_M, MIN_DISTANCE_SCALE)
+        own_fitness = float(loop.scores["fitness"])
+        for other in accepted:
+            if other is loop or not _near(loop, other, nodes):
+                continue
+            start = implied_start(loop, other, nodes)
+            if _within(start, loop.measured, far_m * scale, far_deg):
+                continue  # the two loops agree
+            fit = polish(
+                normals.cloud(loop.candidate.source), normals.cloud(loop.candidate.target), start, scale
+            )
+            apart_m, apart_deg = motion_difference(np.asarray(fit.transformation), loop.measured)
+            if not _within(fit.transformation, loop.measured, far_m * scale, far_deg) and (
+                fit.fitness > own_fitness - close_fitness
+            ):
+                rejected.append((loop, other, apart_m, apart_deg, float(fit.fitness)))
+                break
+    for loop, other, apart_m, apart_deg, fitness in rejected:
+        loop.accepted = False
+        loop.check = "ambiguous"
+        loop.reason = (
+            f"rejected: ambiguous: polished from where the loop of frames {other.source_frame} -> "
+            f"{other.target_frame} and the odometry put the source, it ends {apart_m:.1f} m / "
+            f"{apart_deg:.0f} deg from this fit at overlap {fitness:.2f} (this fit's "
+            f"{loop.scores['fitness']:.2f})"
+        )
+
+
+def _near(first: LoopDecision, second: LoopDecision, nodes: Sequence[Node]) -> bool:
+    """The two loops' sources, and their targets, within :data:`~vcr_odom.loops.cycles.CYCLE_SPAN_M` of
+    path: the odometry between them is the short stretch a cycle trusts."""
+    a, b = first.candidate, second.candidate
+    return (
+        abs(nodes[a.source].path_m - nodes[b.source].path_m) <= CYCLE_SPAN_M
+        and abs(nodes[a.target].path_m - nodes[b.target].path_m) <= CYCLE_SPAN_M
+    )
+
+
+def _within(first: object, second: object, metres: float, degrees: float) -> bool:
+    apart_m, apart_deg = motion_difference(np.asarray(first), np.asarray(second))
+    return apart_m <= metres and apart_deg <= degrees
