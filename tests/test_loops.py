@@ -334,7 +334,7 @@ def test_a_spinning_sensor_fit_overlapping_under_half_is_rejected(sample_nodes, 
     fit = SimpleNamespace(
         fitness=0.45, inlier_rmse=0.45, transformation=truth, correspondence_set=np.zeros((0, 2))
     )
-    monkeypatch.setattr(verify, "_polish", lambda *args: fit)
+    monkeypatch.setattr(verify, "polish", lambda *args: fit)
     decision = verify.LoopVerifier(VcrRegistrar(device="cpu")).verify(candidate, nodes)
     assert decision.check == "overlap" and decision.reason == "rejected: overlap 0.45 < 0.5"
 

@@ -162,7 +162,7 @@ def test_a_better_fit_beyond_the_bound_is_a_second_answer_unless_turned(
     within = SimpleNamespace(fitness=0.61, inlier_rmse=0.45, transformation=candidate.prior)
     beyond = SimpleNamespace(fitness=0.72, inlier_rmse=0.45, transformation=candidate.prior @ other_arm)
     calls = iter([beyond])  # the network's start is polished first; then the odometry's, then probes
-    monkeypatch.setattr(verify, "_polish", lambda *args: next(calls, within))
+    monkeypatch.setattr(verify, "polish", lambda *args: next(calls, within))
     decision = verify.LoopVerifier(VcrRegistrar(device="cpu")).verify(candidate, nodes)
     assert decision.scores["submaps"] and decision.scores["start"] == "odometry"
     assert (decision.check == "ambiguous") is ambiguous, decision.reason
@@ -242,7 +242,7 @@ def test_a_submap_loop_whose_own_scan_slides_away_is_rejected(bent_walk, monkeyp
     (it sees one wall: unseen walk 923): nothing checks the submaps' heading, so the loop is refused by
     name instead of kept at the bent submap fit."""
     nodes, candidate, _ = bent_walk
-    polish = verify._polish
+    polish = verify.polish
     own_cloud_size = len(nodes[candidate.source].cloud)
 
     def sliding(source, target, start, scale):
@@ -254,7 +254,7 @@ def test_a_submap_loop_whose_own_scan_slides_away_is_rejected(bent_walk, monkeyp
         )
         return SimpleNamespace(fitness=0.46, inlier_rmse=fit.inlier_rmse, transformation=slid)
 
-    monkeypatch.setattr(verify, "_polish", sliding)
+    monkeypatch.setattr(verify, "polish", sliding)
     decision = verify.LoopVerifier(VcrRegistrar(device="cpu")).verify(candidate, nodes)
     assert decision.scores["submaps"] and decision.scores["own_scan_fitness"] == 0.46
     assert not decision.accepted and decision.check == "degenerate"
@@ -289,7 +289,7 @@ def test_a_narrow_field_fit_needs_less_overlap_than_a_spinning_one(
     enough there (a spinning sensor's fits need 0.5: tests/test_loops.py)."""
     nodes, candidate, _ = crossing
     fit = SimpleNamespace(fitness=fitness, inlier_rmse=0.45, transformation=candidate.prior)
-    monkeypatch.setattr(verify, "_polish", lambda *args: fit)
+    monkeypatch.setattr(verify, "polish", lambda *args: fit)
     decision = verify.LoopVerifier(VcrRegistrar(device="cpu")).verify(candidate, nodes)
     assert decision.accepted is accepted, decision.reason
     if not accepted:
