@@ -56,16 +56,14 @@ def reject_loops_ambiguous_from_implied_starts(
             if other is loop or not _near(loop, other, nodes):
                 continue
             start = implied_start(loop, other, nodes)
-            if _within(start, loop.measured, far_m * scale, far_deg):
+            if _within(motion_difference(start, loop.measured), far_m * scale, far_deg):
                 continue  # the two loops agree
             fit = polish(
                 normals.cloud(loop.candidate.source), normals.cloud(loop.candidate.target), start, scale
             )
-            apart_m, apart_deg = motion_difference(np.asarray(fit.transformation), loop.measured)
-            if not _within(fit.transformation, loop.measured, far_m * scale, far_deg) and (
-                fit.fitness > own_fitness - close_fitness
-            ):
-                rejected.append((loop, other, apart_m, apart_deg, float(fit.fitness)))
+            apart = motion_difference(np.asarray(fit.transformation), loop.measured)
+            if not _within(apart, far_m * scale, far_deg) and fit.fitness > own_fitness - close_fitness:
+                rejected.append((loop, other, *apart, float(fit.fitness)))
                 break
     for loop, other, apart_m, apart_deg, fitness in rejected:
         loop.accepted = False
@@ -88,6 +86,6 @@ def _near(first: LoopDecision, second: LoopDecision, nodes: Sequence[Node]) -> b
     )
 
 
-def _within(first: object, second: object, metres: float, degrees: float) -> bool:
-    apart_m, apart_deg = motion_difference(np.asarray(first), np.asarray(second))
-    return apart_m <= metres and apart_deg <= degrees
+def _within(apart: tuple[float, float], metres: float, degrees: float) -> bool:
+    """Whether two poses ``apart`` (m, deg: :func:`~vcr_odom.geometry.motion_difference`) count as one."""
+    return apart[0] <= metres and apart[1] <= degrees
