@@ -53,7 +53,7 @@ def reject_loops_ambiguous_from_implied_starts(
         scale = max(source.cloud_voxel / CLOUD_VOXEL_M, MIN_DISTANCE_SCALE)
         own_fitness = float(loop.scores["fitness"])
         for other in accepted:
-            if other is loop or not _near(loop, other, nodes):
+            if other is loop or not within_cycle_span(loop, other, nodes):
                 continue
             start = implied_start(loop, other, nodes)
             if _within(motion_difference(start, loop.measured), far_m * scale, far_deg):
@@ -76,7 +76,7 @@ def reject_loops_ambiguous_from_implied_starts(
         )
 
 
-def _near(first: LoopDecision, second: LoopDecision, nodes: Sequence[Node]) -> bool:
+def within_cycle_span(first: LoopDecision, second: LoopDecision, nodes: Sequence[Node]) -> bool:
     """The two loops' sources, and their targets, within :data:`~vcr_odom.loops.cycles.CYCLE_SPAN_M` of
     path: the odometry between them is the short stretch a cycle trusts."""
     a, b = first.candidate, second.candidate

@@ -40,6 +40,7 @@ from vcr_odom.loops.graph import LoopEdge, correct_frames, factor_summary, optim
 from vcr_odom.loops.implied_starts import reject_loops_ambiguous_from_implied_starts
 from vcr_odom.loops.nodes import NODE_SPACING_DEG, NODE_SPACING_M, Node, NodeNormals, NodeRecorder
 from vcr_odom.loops.odometry_doubts import OdometryDoubts, fit_sigma_factors
+from vcr_odom.loops.outranked import reject_weak_loops_corroborated_ones_contradict
 from vcr_odom.loops.same_place import reject_disagreeing_submap_fits
 from vcr_odom.loops.up_priors import ATTITUDE_SIGMA_DEG
 from vcr_odom.loops.verify import CHECKS, LoopDecision, LoopVerifier
@@ -372,6 +373,7 @@ def close_loops(
                 advance(candidate.source, candidate.prior)
         reject_disagreeing_submap_fits(decisions, nodes)
         reject_loops_ambiguous_from_implied_starts(decisions, nodes, normals)
+        reject_weak_loops_corroborated_ones_contradict(decisions, nodes)
     phase.seconds["loops"] = time.perf_counter() - started
     started = time.perf_counter()
     edges = [
