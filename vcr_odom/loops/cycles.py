@@ -101,7 +101,7 @@ def loop_cycles(
             second = loops[j]
             if path[second.source] - path[first.source] > CYCLE_SPAN_M:
                 break
-            if abs(path[second.target] - path[first.target]) > CYCLE_SPAN_M:
+            if not within_cycle_span(nodes, (first.source, first.target), (second.source, second.target)):
                 continue
             expected_t = expected_r = 0.0
             for a, b in ((first.source, second.source), (first.target, second.target)):
@@ -118,6 +118,14 @@ def loop_cycles(
             translation_ratio = float(np.linalg.norm(misclosure[3:])) / math.sqrt(3 * expected_t)
             cycles.append(Cycle(i, j, max(rotation_ratio, translation_ratio)))
     return cycles
+
+
+def within_cycle_span(nodes: Sequence[Node], first: tuple[int, int], second: tuple[int, int]) -> bool:
+    """Whether two loops, each (source, target) node indices, close a cycle: their sources, and their
+    targets, within :data:`CYCLE_SPAN_M` of path of each other."""
+    return all(
+        abs(nodes[a].path_m - nodes[b].path_m) <= CYCLE_SPAN_M for a, b in zip(first, second, strict=True)
+    )
 
 
 def odometry_scale(cycles: Sequence[Cycle]) -> OdometryScale:

@@ -30,6 +30,11 @@ class LoopDecision:
     corroborated: bool = False
     """Its two starts agreed (:mod:`~vcr_odom.loops.corroboration`): the pose graph's trust."""
 
+    @property
+    def ends(self) -> tuple[int, int]:
+        """The candidate's (source, target) node indices."""
+        return self.candidate.source, self.candidate.target
+
     def to_dict(self) -> dict[str, Any]:
         candidate = self.candidate
         return {

@@ -18,10 +18,10 @@ from collections.abc import Sequence
 import numpy as np
 
 from vcr_odom.geometry import Transform, invert, motion_difference
-from vcr_odom.loops.cycles import CYCLE_SPAN_M
+from vcr_odom.loops.cycles import within_cycle_span
 from vcr_odom.loops.decision import LoopDecision
-from vcr_odom.loops.nodes import CLOUD_VOXEL_M, Node, NodeNormals
-from vcr_odom.loops.verify import AMBIGUITY, MIN_DISTANCE_SCALE, polish
+from vcr_odom.loops.nodes import Node, NodeNormals
+from vcr_odom.loops.verify import AMBIGUITY, distance_scale, polish
 
 
 def implied_start(loop: LoopDecision, other: LoopDecision, nodes: Sequence[Node]) -> Transform:
@@ -49,18 +49,17 @@ def reject_loops_ambiguous_from_implied_starts(
     for loop in accepted:
         if loop.scores.get("submaps"):
             continue  # its clouds are submaps; a node's own cloud measures something else
-        source = nodes[loop.candidate.source]
-        scale = max(source.cloud_voxel / CLOUD_VOXEL_M, MIN_DISTANCE_SCALE)
+        scale = distance_scale(nodes[loop.candidate.source])
         own_fitness = float(loop.scores["fitness"])
+        clouds = None  # made once, where a start needs polishing
         for other in accepted:
-            if other is loop or not within_cycle_span(loop, other, nodes):
+            if other is loop or not within_cycle_span(nodes, loop.ends, other.ends):
                 continue
             start = implied_start(loop, other, nodes)
             if _within(motion_difference(start, loop.measured), far_m * scale, far_deg):
                 continue  # the two loops agree
-            fit = polish(
-                normals.cloud(loop.candidate.source), normals.cloud(loop.candidate.target), start, scale
-            )
+            clouds = clouds or (normals.cloud(loop.candidate.source), normals.cloud(loop.candidate.target))
+            fit = polish(*clouds, start, scale)
             apart = motion_difference(np.asarray(fit.transformation), loop.measured)
             if not _within(apart, far_m * scale, far_deg) and fit.fitness > own_fitness - close_fitness:
                 rejected.append((loop, other, *apart, float(fit.fitness)))
@@ -74,16 +73,6 @@ def reject_loops_ambiguous_from_implied_starts(
             f"{apart_deg:.0f} deg from this fit at overlap {fitness:.2f} (this fit's "
             f"{loop.scores['fitness']:.2f})"
         )
-
-
-def within_cycle_span(first: LoopDecision, second: LoopDecision, nodes: Sequence[Node]) -> bool:
-    """The two loops' sources, and their targets, within :data:`~vcr_odom.loops.cycles.CYCLE_SPAN_M` of
-    path: the odometry between them is the short stretch a cycle trusts."""
-    a, b = first.candidate, second.candidate
-    return (
-        abs(nodes[a.source].path_m - nodes[b.source].path_m) <= CYCLE_SPAN_M
-        and abs(nodes[a.target].path_m - nodes[b.target].path_m) <= CYCLE_SPAN_M
-    )
 
 
 def _within(apart: tuple[float, float], metres: float, degrees: float) -> bool:

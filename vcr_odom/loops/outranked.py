@@ -16,11 +16,11 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 from vcr_odom.geometry import motion_difference
-from vcr_odom.loops.cycles import MIN_CYCLES
+from vcr_odom.loops.cycles import MIN_CYCLES, within_cycle_span
 from vcr_odom.loops.decision import LoopDecision
-from vcr_odom.loops.implied_starts import implied_start, within_cycle_span
-from vcr_odom.loops.nodes import CLOUD_VOXEL_M, Node
-from vcr_odom.loops.verify import AMBIGUITY, MIN_DISTANCE_SCALE
+from vcr_odom.loops.implied_starts import implied_start
+from vcr_odom.loops.nodes import Node
+from vcr_odom.loops.verify import AMBIGUITY, distance_scale
 from vcr_odom.odometry.degeneracy import WEAK_AXIS_SHARE
 
 
@@ -32,7 +32,9 @@ def reject_weak_loops_corroborated_ones_contradict(
     :data:`~vcr_odom.loops.verify.AMBIGUITY`'s distance or turn from where a corroborated loop within a
     cycle's span puts it, where the accepted loops close fewer than :data:`MIN_CYCLES` cycles."""
     accepted = [d for d in decisions if d.accepted and d.measured is not None]
-    pairs = sum(within_cycle_span(a, b, nodes) for k, a in enumerate(accepted) for b in accepted[k + 1 :])
+    pairs = sum(
+        within_cycle_span(nodes, a.ends, b.ends) for k, a in enumerate(accepted) for b in accepted[k + 1 :]
+    )
     if pairs >= MIN_CYCLES:
         return
     far_m, far_deg, _ = AMBIGUITY
@@ -42,9 +44,9 @@ def reject_weak_loops_corroborated_ones_contradict(
         share = loop.scores.get("weakest_share", 1.0)
         if loop.corroborated or loop.scores.get("submaps") or share >= WEAK_AXIS_SHARE:
             continue
-        scale = max(nodes[loop.candidate.source].cloud_voxel / CLOUD_VOXEL_M, MIN_DISTANCE_SCALE)
+        scale = distance_scale(nodes[loop.candidate.source])
         for other in corroborated:
-            if not within_cycle_span(loop, other, nodes):
+            if not within_cycle_span(nodes, loop.ends, other.ends):
                 continue
             apart_m, apart_deg = motion_difference(implied_start(loop, other, nodes), loop.measured)
             if apart_m > far_m * scale or apart_deg > far_deg:

@@ -168,7 +168,7 @@ class LoopVerifier:
             decision.reason = f"rejected: too few points ({len(source.cloud)}, {len(target.cloud)})"
             return decision
         kept_before = self.ground_kept
-        scale = max(source.cloud_voxel / CLOUD_VOXEL_M, MIN_DISTANCE_SCALE)
+        scale = distance_scale(source)
         narrow = _either_narrow(source, target)
         submaps = self._needs_submaps(candidate, narrow)
         source_key = _cloud_key(candidate.source, candidate.target, nodes, submaps)
@@ -466,6 +466,11 @@ def ambiguous(scores: dict[str, Any], fitness_gap: float, apart_deg: float, scal
         return False
     sliding = scores.get("weakest_share", 1.0) < WEAK_AXIS_SHARE
     return sliding or fitness_gap < close_fitness
+
+
+def distance_scale(source: Node) -> float:
+    """The factor on the verification's distances for ``source``'s node grid (:data:`MIN_DISTANCE_SCALE`)."""
+    return max(source.cloud_voxel / CLOUD_VOXEL_M, MIN_DISTANCE_SCALE)
 
 
 def _either_narrow(source: Node, target: Node) -> bool:
