@@ -30,6 +30,10 @@ class LoopDecision:
     corroborated: bool = False
     """Its two starts agreed (:mod:`~vcr_odom.loops.corroboration`): the pose graph's trust."""
 
+    def reject(self, check: str, reason: str) -> None:
+        """Turn the loop away: ``check`` names the check it failed, ``reason`` says why (loops.json)."""
+        self.accepted, self.check, self.reason = False, check, reason
+
     @property
     def ends(self) -> tuple[int, int]:
         """The candidate's (source, target) node indices."""

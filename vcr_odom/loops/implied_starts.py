@@ -65,13 +65,12 @@ def reject_loops_ambiguous_from_implied_starts(
                 rejected.append((loop, other, *apart, float(fit.fitness)))
                 break
     for loop, other, apart_m, apart_deg, fitness in rejected:
-        loop.accepted = False
-        loop.check = "ambiguous"
-        loop.reason = (
+        loop.reject(
+            "ambiguous",
             f"rejected: ambiguous: polished from where the loop of frames {other.source_frame} -> "
             f"{other.target_frame} and the odometry put the source, it ends {apart_m:.1f} m / "
             f"{apart_deg:.0f} deg from this fit at overlap {fitness:.2f} (this fit's "
-            f"{loop.scores['fitness']:.2f})"
+            f"{loop.scores['fitness']:.2f})",
         )
 
 

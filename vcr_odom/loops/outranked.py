@@ -53,10 +53,9 @@ def reject_weak_loops_corroborated_ones_contradict(
                 rejected.append((loop, other, apart_m, apart_deg))
                 break
     for loop, other, apart_m, apart_deg in rejected:
-        loop.accepted = False
-        loop.check = "ambiguous"
-        loop.reason = (
+        loop.reject(
+            "ambiguous",
             f"rejected: ambiguous: its surfaces hardly face one way (weakest share "
             f"{loop.scores['weakest_share']:.3f}), and the corroborated loop of frames {other.source_frame} -> "
-            f"{other.target_frame} puts the source {apart_m:.1f} m / {apart_deg:.0f} deg from this fit"
+            f"{other.target_frame} puts the source {apart_m:.1f} m / {apart_deg:.0f} deg from this fit",
         )

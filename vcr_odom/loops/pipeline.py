@@ -390,9 +390,7 @@ def close_loops(
     ):
         decision.scores["graph_weight"] = round(weight, 4)
         if not kept:
-            decision.accepted = False
-            decision.check = "graph"
-            decision.reason = dropped_reason(graph.cycle_outliers.get(k), weight, len(edges))
+            decision.reject("graph", dropped_reason(graph.cycle_outliers.get(k), weight, len(edges)))
     before = np.stack([node.pose for node in nodes])
     if any(graph.kept):
         poses = correct_frames(odometry_poses, [n.position for n in nodes], before, graph.node_poses)

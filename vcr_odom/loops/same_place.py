@@ -58,11 +58,10 @@ def reject_disagreeing_submap_fits(decisions: Sequence[LoopDecision], nodes: Seq
         if worst is not None:
             rejected.append((loop, worst[1], worst[0]))
     for loop, other, apart in rejected:
-        loop.accepted = False
-        loop.check = "ambiguous"
-        loop.reason = (
+        loop.reject(
+            "ambiguous",
             f"rejected: ambiguous: the submap fit of the same place from frames {other.source_frame} -> "
-            f"{other.target_frame} puts the source {apart:.1f} m from where this one does"
+            f"{other.target_frame} puts the source {apart:.1f} m from where this one does",
         )
 
 

@@ -164,8 +164,7 @@ class LoopVerifier:
             self.normals = NodeNormals(nodes)
         decision = LoopDecision(candidate, source.frame_index, target.frame_index)
         if min(len(source.cloud), len(target.cloud)) < MIN_CLOUD_POINTS:  # an empty or near-empty scan
-            decision.check = "points"
-            decision.reason = f"rejected: too few points ({len(source.cloud)}, {len(target.cloud)})"
+            decision.reject("points", f"rejected: too few points ({len(source.cloud)}, {len(target.cloud)})")
             return decision
         kept_before = self.ground_kept
         scale = distance_scale(source)
@@ -175,17 +174,16 @@ class LoopVerifier:
         target_key = _cloud_key(candidate.target, candidate.source, nodes, submaps)
         source_points = self._cloud(source_key, nodes)
         if min(len(source_points), len(self._cloud(target_key, nodes))) < MIN_CLOUD_POINTS:
-            decision.check = "points"
-            decision.reason = "rejected: too few points within the submaps' radius"
+            decision.reject("points", "rejected: too few points within the submaps' radius")
             return decision
         if submaps:
             flagged = (self._flagged_within(source_key, nodes), self._flagged_within(target_key, nodes))
             if max(flagged) > MAX_SUBMAP_FLAGGED:
-                decision.check = "doubted_submap"
-                decision.reason = (
+                decision.reject(
+                    "doubted_submap",
                     f"rejected: the odometry replaced {flagged[0]} and {flagged[1]} implausible motions "
                     f"among the frames of the two submaps (more than {MAX_SUBMAP_FLAGGED}): a bent submap "
-                    "fits a look-alike place"
+                    "fits a look-alike place",
                 )
                 return decision
         target_frame, target_cloud = self._target(target_key, nodes)
