@@ -65,6 +65,40 @@ def revisit_passages(gt: np.ndarray, node_positions: list[int], min_path: float)
     return passages
 
 
+def loop_error(
+    gt: np.ndarray, frame_position: dict[int, int], loop: dict[str, Any], transform: str
+) -> tuple[float, float]:
+    """How far a candidate's ``transform`` (``measured_T_target_source`` or ``odometry_T_target_source``
+    of loops.json) is from the truth's: metres and degrees."""
+    a, b = frame_position[loop["source_frame"]], frame_position[loop["target_frame"]]
+    error = invert(invert(gt[b]) @ gt[a]) @ np.asarray(loop[transform])
+    return float(np.linalg.norm(error[:3, 3])), math.degrees(float(rotation_angle(error[:3, :3])))
+
+
+def candidates_against_truth(
+    gt: np.ndarray, frame_indices: list[int], loops: dict[str, Any]
+) -> list[dict[str, Any]]:
+    """Every candidate of ``loops`` (as loops.json holds it) with its verdict and how far its measured
+    transform, where there is one, and the odometry's are from the truth: why a revisit stayed open,
+    or which check a false fit passed."""
+    frame_position = {f: k for k, f in enumerate(frame_indices)}
+    rows = []
+    for loop in loops["candidates"]:
+        row = {
+            key: loop.get(key)
+            for key in ("source_frame", "target_frame", "accepted", "failed_check", "reason")
+        }
+        row["odometry_error_m"], row["odometry_error_deg"] = (
+            round(value, 3) for value in loop_error(gt, frame_position, loop, "odometry_T_target_source")
+        )
+        if loop.get("measured_T_target_source") is not None:
+            row["error_m"], row["error_deg"] = (
+                round(value, 3) for value in loop_error(gt, frame_position, loop, "measured_T_target_source")
+            )
+        rows.append(row)
+    return rows
+
+
 def score_loops(
     gt: np.ndarray,
     frame_indices: list[int],
@@ -82,11 +116,8 @@ def score_loops(
     false, right, farthest = [], [], 0.0
     for loop in accepted:
         a, b = frame_position[loop["source_frame"]], frame_position[loop["target_frame"]]
-        truth = invert(gt[b]) @ gt[a]
-        error = invert(truth) @ np.asarray(loop["measured_T_target_source"])
         apart = float(np.linalg.norm(gt[a][:3, 3] - gt[b][:3, 3]))
-        error_m = float(np.linalg.norm(error[:3, 3]))
-        error_deg = math.degrees(float(rotation_angle(error[:3, :3])))
+        error_m, error_deg = loop_error(gt, frame_position, loop, "measured_T_target_source")
         farthest = max(farthest, apart)
         if error_m <= FALSE_M and error_deg <= FALSE_DEG:
             right.append({"error_m": error_m, "error_deg": error_deg, "submaps": bool(loop.get("submaps"))})

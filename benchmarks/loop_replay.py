@@ -7,7 +7,7 @@ Not a test: run
         [--stride K] [--method vcr] [--polish-voxel V] [--point-to-plane auto|on|off]
     # after each change under vcr_odom/loops: the loop phase on the recording, scored against the truth
     .venv/bin/python benchmarks/loop_replay.py replay rec/881.pkl [rec/898.pkl ...] [--json out.json] \
-        [--set passage_attempts=1000 ...]
+        [--set passage_attempts=1000 ...] [--candidates DIR]
 
 A recording holds what ``map`` hands its loop phase: the nodes (odometry poses, coarse clouds), every
 frame's pose, what the odometry said of each frame (flagged frames, fits), and the loop options
@@ -20,6 +20,9 @@ and submap fits apart), how far the map moved any frame, and the seconds of the 
 verification and of the graph (``loop_seconds``: compare a change's cost in one process on a quiet
 machine; ``OMP_NUM_THREADS=1`` keeps two replays side by side from slowing each other many times
 over). A change to the odometry or to how nodes are recorded needs a new recording.
+``--candidates DIR`` writes, per recording, every candidate with its verdict (``failed_check``,
+``reason``) and how far its measured transform and the odometry's are from the truth: a right loop
+turned away, or a false one that passed, named with the check that decided it.
 
 ``replay --truth-loops`` runs the loop phase a second time with the graph given the truth's
 ``T_target_source`` for each loop it gets (the same loops, informations and rounds) and adds that
@@ -46,7 +49,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from loop_closure import score_loops  # beside this script
+from loop_closure import candidates_against_truth, score_loops  # beside this script
 from odometry_error_split import error_split  # beside this script
 from rich.console import Console
 from rich.table import Table
@@ -125,11 +128,16 @@ def record(args: argparse.Namespace) -> None:
 
 
 def replay_one(
-    path: Path, options_set: dict[str, str] | None = None, truth_loops: bool = False
+    path: Path,
+    options_set: dict[str, str] | None = None,
+    truth_loops: bool = False,
+    candidates: Path | None = None,
 ) -> dict[str, Any]:
     """The loop phase on one recording, scored against its sequence's ground truth; ``options_set``
     replaces recorded loop options (``LoopOptions`` field names, values as typed); ``truth_loops``
-    adds the map's ATE with every loop the graph gets measured by the truth (see the module doc)."""
+    adds the map's ATE with every loop the graph gets measured by the truth (see the module doc);
+    ``candidates``: a folder that gets ``<sequence>.json``, every candidate's verdict and its errors
+    against the truth (:func:`candidates_against_truth`)."""
     with path.open("rb") as handle:
         recording = pickle.load(handle)  # the caller's own recording (see the module doc)
     if not isinstance(recording, dict) or recording.get("format") != FORMAT:
@@ -147,6 +155,11 @@ def replay_one(
     phases = Phases(None)
     closed = close_loops(options, network, recording["nodes"], recording["poses"], phases, doubts)
     loops = loops_json(closed.decisions, recording["nodes"])
+    if candidates is not None:
+        judged = candidates_against_truth(gt, recording["frame_indices"], loops)
+        candidates.mkdir(parents=True, exist_ok=True)
+        with replacing(candidates / f"{folder.name}.json") as temporary:
+            temporary.write_text(json.dumps(judged, indent=1, default=_plain))
     row = score_loops(
         gt, recording["frame_indices"], loops, recording["poses"], closed.poses, options.min_loop_path
     )
@@ -194,7 +207,7 @@ def _loops_measured_by(gt: np.ndarray) -> Iterator[None]:
 
 
 def replay(args: argparse.Namespace) -> None:
-    rows = [replay_one(path, args.options_set, args.truth_loops) for path in args.recordings]
+    rows = [replay_one(path, args.options_set, args.truth_loops, args.candidates) for path in args.recordings]
     table = Table(title=f"the loop phase at {_commit()} on recorded odometry")
     for header in (
         "sequence",
@@ -312,6 +325,13 @@ def main() -> None:
         default=[],
         metavar="NAME=VALUE",
         help="replace a recorded loop option (a LoopOptions field, e.g. passage_attempts=1000); repeatable",
+    )
+    again.add_argument(
+        "--candidates",
+        type=Path,
+        metavar="DIR",
+        help="write DIR/<sequence>.json: every candidate's verdict and how far its measured transform and "
+        "the odometry's are from the truth",
     )
     again.add_argument(
         "--truth-loops",

@@ -58,13 +58,23 @@ def test_a_replay_scores_what_map_made_of_the_same_frames(small_synthetic_root: 
 
     # --set replaces a recorded option: 8 frames are too short a path for a loop at 30 m, not at 1 m
     assert row["candidates"] == 0 and row["options_set"] == {}
-    wider = tmp_path / "wider.json"
-    options = ["--set", "min_loop_path=1", "--set", "revisit_radius=50"]
+    wider, judged = tmp_path / "wider.json", tmp_path / "candidates"
+    options = ["--set", "min_loop_path=1", "--set", "revisit_radius=50", "--candidates", str(judged)]
     replayed = _replay("replay", str(recording), *options, "--json", str(wider))
     assert replayed.returncode == 0, replayed.stderr
     (row,) = json.loads(wider.read_text())
     assert row["candidates"] > 0 and row["options_set"] == {"min_loop_path": "1", "revisit_radius": "50"}
     assert len(row["right_loop_errors"]) + row["false_closures"] == row["accepted"]
+
+    # --candidates: each candidate's verdict, and its errors against the truth as the score measures them
+    candidates = json.loads((judged / "00.json").read_text())
+    assert len(candidates) == row["candidates"]
+    assert sum(c["accepted"] for c in candidates) == row["accepted"] > 0  # the premise: a loop kept
+    assert all(c["reason"] and (c["accepted"] or c["failed_check"]) for c in candidates)
+    kept_errors = sorted(round(c["error_m"], 3) for c in candidates if c["accepted"])
+    scored = [round(e["error_m"], 3) for e in row["right_loop_errors"]]
+    assert kept_errors == sorted(scored + [f["error_m"] for f in row["false_closure_details"]])
+    assert all(c["odometry_error_m"] >= 0 for c in candidates)
 
 
 def test_a_recording_is_made_with_the_point_to_plane_finish_it_is_asked_for(
