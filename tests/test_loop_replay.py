@@ -74,7 +74,6 @@ def test_a_replay_scores_what_map_made_of_the_same_frames(small_synthetic_root: 
     kept_errors = sorted(round(c["error_m"], 3) for c in candidates if c["accepted"])
     scored = [round(e["error_m"], 3) for e in row["right_loop_errors"]]
     assert kept_errors == sorted(scored + [f["error_m"] for f in row["false_closure_details"]])
-    assert all(c["odometry_error_m"] >= 0 for c in candidates)
 
 
 def test_a_recording_is_made_with_the_point_to_plane_finish_it_is_asked_for(
