@@ -21,7 +21,7 @@ from vcr_odom.geometry import Transform, invert, motion_difference
 from vcr_odom.loops.cycles import within_cycle_span
 from vcr_odom.loops.decision import LoopDecision
 from vcr_odom.loops.nodes import Node, NodeNormals
-from vcr_odom.loops.verify import AMBIGUITY, distance_scale, polish
+from vcr_odom.loops.verify import AMBIGUITY, distance_scale, one_fit, polish
 
 
 def implied_start(loop: LoopDecision, other: LoopDecision, nodes: Sequence[Node]) -> Transform:
@@ -44,7 +44,7 @@ def reject_loops_ambiguous_from_implied_starts(
     its fit at an overlap within AMBIGUITY's margin of its own. Every verdict is taken against the loops
     accepted before any is turned away, so two loops that make each other ambiguous both go."""
     accepted = [d for d in decisions if d.accepted and d.measured is not None]
-    far_m, far_deg, close_fitness = AMBIGUITY
+    close_fitness = AMBIGUITY[2]
     rejected: list[tuple[LoopDecision, LoopDecision, float, float, float]] = []
     for loop in accepted:
         if loop.scores.get("submaps"):
@@ -56,12 +56,12 @@ def reject_loops_ambiguous_from_implied_starts(
             if other is loop or not within_cycle_span(nodes, loop.ends, other.ends):
                 continue
             start = implied_start(loop, other, nodes)
-            if _within(motion_difference(start, loop.measured), far_m * scale, far_deg):
+            if one_fit(motion_difference(start, loop.measured), scale):
                 continue  # the two loops agree
             clouds = clouds or (normals.cloud(loop.candidate.source), normals.cloud(loop.candidate.target))
             fit = polish(*clouds, start, scale)
             apart = motion_difference(np.asarray(fit.transformation), loop.measured)
-            if not _within(apart, far_m * scale, far_deg) and fit.fitness > own_fitness - close_fitness:
+            if not one_fit(apart, scale) and fit.fitness > own_fitness - close_fitness:
                 rejected.append((loop, other, *apart, float(fit.fitness)))
                 break
     for loop, other, apart_m, apart_deg, fitness in rejected:
@@ -72,8 +72,3 @@ def reject_loops_ambiguous_from_implied_starts(
             f"{apart_deg:.0f} deg from this fit at overlap {fitness:.2f} (this fit's "
             f"{loop.scores['fitness']:.2f})",
         )
-
-
-def _within(apart: tuple[float, float], metres: float, degrees: float) -> bool:
-    """Whether two poses ``apart`` (m, deg: :func:`~vcr_odom.geometry.motion_difference`) count as one."""
-    return apart[0] <= metres and apart[1] <= degrees

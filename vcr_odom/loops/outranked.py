@@ -20,7 +20,7 @@ from vcr_odom.loops.cycles import MIN_CYCLES, within_cycle_span
 from vcr_odom.loops.decision import LoopDecision
 from vcr_odom.loops.implied_starts import implied_start
 from vcr_odom.loops.nodes import Node
-from vcr_odom.loops.verify import AMBIGUITY, distance_scale
+from vcr_odom.loops.verify import distance_scale, one_fit
 from vcr_odom.odometry.degeneracy import WEAK_AXIS_SHARE
 
 
@@ -37,7 +37,6 @@ def reject_weak_loops_corroborated_ones_contradict(
     )
     if pairs >= MIN_CYCLES:
         return
-    far_m, far_deg, _ = AMBIGUITY
     corroborated = [d for d in accepted if d.corroborated]
     rejected: list[tuple[LoopDecision, LoopDecision, float, float]] = []
     for loop in accepted:
@@ -49,7 +48,7 @@ def reject_weak_loops_corroborated_ones_contradict(
             if not within_cycle_span(nodes, loop.ends, other.ends):
                 continue
             apart_m, apart_deg = motion_difference(implied_start(loop, other, nodes), loop.measured)
-            if apart_m > far_m * scale or apart_deg > far_deg:
+            if not one_fit((apart_m, apart_deg), scale):
                 rejected.append((loop, other, apart_m, apart_deg))
                 break
     for loop, other, apart_m, apart_deg in rejected:

@@ -459,11 +459,18 @@ def ambiguous(scores: dict[str, Any], fitness_gap: float, apart_deg: float, scal
     892, 896, 926), and every right one had both starts end in one fit (891, 941, 942, 947, 957, 561,
     841); on walks made since, it also took a loop 0.72 m off (998; docs/benchmarks.md, "Two fits on
     a footpath")."""
-    far_m, far_deg, close_fitness = AMBIGUITY
-    if scores["starts_apart_m"] <= far_m * scale and apart_deg <= far_deg:
+    if one_fit((scores["starts_apart_m"], apart_deg), scale):
         return False
+    close_fitness = AMBIGUITY[2]
     sliding = scores.get("weakest_share", 1.0) < WEAK_AXIS_SHARE
     return sliding or fitness_gap < close_fitness
+
+
+def one_fit(apart: tuple[float, float], scale: float) -> bool:
+    """Whether two fits ``apart`` (m, deg: :func:`~vcr_odom.geometry.motion_difference`) are one: within
+    :data:`AMBIGUITY`'s distance (times ``scale``) and turn."""
+    far_m, far_deg, _ = AMBIGUITY
+    return apart[0] <= far_m * scale and apart[1] <= far_deg
 
 
 def distance_scale(source: Node) -> float:
