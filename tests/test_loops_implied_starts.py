@@ -96,3 +96,36 @@ def test_loops_too_far_apart_do_not_judge_each_other() -> None:
     loops = [_loop(nodes, normals, 2, 0, 0.0), _loop(nodes, normals, 3, 1, PILLAR_SPACING_M)]
     reject_loops_ambiguous_from_implied_starts(loops, nodes, normals)
     assert all(d.accepted for d in loops)
+
+
+def _turned_away_as_ambiguous(loop: LoopDecision) -> LoopDecision:
+    """``loop`` as the verification turns away a candidate whose two starts ended in two fits, its
+    better one measured."""
+    loop.reject("ambiguous", "rejected: ambiguous: the two starts end apart")
+    return loop
+
+
+def test_a_loop_that_fits_where_an_ambiguous_candidate_puts_it_is_turned_away() -> None:
+    """The drifted avenue (5604): the candidate by the end wall was turned away as ambiguous, its better
+    fit on the place; the loop kept among the pillars one spacing off also fits where that fit puts it,
+    so it is as ambiguous and goes."""
+    nodes, normals = _walk()
+    slid = _loop(nodes, normals, 3, 1, PILLAR_SPACING_M)
+    reject_loops_ambiguous_from_implied_starts([slid], nodes, normals)
+    assert slid.accepted, "alone, nothing says the place repeats"
+
+    candidate = _turned_away_as_ambiguous(_loop(nodes, normals, 2, 0, 0.0))
+    reject_loops_ambiguous_from_implied_starts([candidate, slid], nodes, normals)
+    assert not slid.accepted and slid.check == "ambiguous"
+    assert "ambiguous candidate of frames 2 -> 0" in slid.reason, slid.reason
+    assert candidate.reason.endswith("the two starts end apart")  # its own verdict is left as it was
+
+
+def test_a_loop_where_the_place_does_not_repeat_stays_beside_an_ambiguous_candidate() -> None:
+    """Near the end wall the pillars' spacing fits no longer: polished from where an ambiguous
+    candidate's fit one spacing off puts it, the right loop comes back to its own fit."""
+    nodes, normals = _walk()
+    right = _loop(nodes, normals, 2, 0, 0.0)
+    candidate = _turned_away_as_ambiguous(_loop(nodes, normals, 3, 1, PILLAR_SPACING_M))
+    reject_loops_ambiguous_from_implied_starts([right, candidate], nodes, normals)
+    assert right.accepted and right.check == ""
