@@ -27,7 +27,6 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import json
-import math
 import tempfile
 import time
 from pathlib import Path
@@ -39,7 +38,7 @@ from rich.table import Table
 
 from vcr_odom.data.selection import FrameSelection
 from vcr_odom.evaluation.revisits import true_revisits
-from vcr_odom.geometry import invert, rotation_angle
+from vcr_odom.geometry import invert, motion_difference
 from vcr_odom.loops.pipeline import MapOutcome, MapSettings, map_sequence
 from vcr_odom.metrics.evo_errors import ate_rpe
 from vcr_odom.odometry.outputs import ground_truth_for
@@ -71,8 +70,7 @@ def loop_error(
     """How far a candidate's ``transform`` (``measured_T_target_source`` or ``odometry_T_target_source``
     of loops.json) is from the truth's: metres and degrees."""
     a, b = frame_position[loop["source_frame"]], frame_position[loop["target_frame"]]
-    error = invert(invert(gt[b]) @ gt[a]) @ np.asarray(loop[transform])
-    return float(np.linalg.norm(error[:3, 3])), math.degrees(float(rotation_angle(error[:3, :3])))
+    return motion_difference(invert(gt[b]) @ gt[a], np.asarray(loop[transform]))
 
 
 def candidates_against_truth(

@@ -35,7 +35,14 @@ from rich.progress import track
 from rich.table import Table
 
 from vcr_odom.data import open_sequence
-from vcr_odom.geometry import Transform, invert, make_transform, rotation_angle, rotation_from_euler_zyx
+from vcr_odom.geometry import (
+    Transform,
+    invert,
+    make_transform,
+    motion_difference,
+    rotation_angle,
+    rotation_from_euler_zyx,
+)
 from vcr_odom.loops import pipeline
 from vcr_odom.loops.nodes import Node, NodeRecorder
 from vcr_odom.metrics.evo_errors import ate_rpe
@@ -77,8 +84,7 @@ def loop_phase(
 def _error(decision: Any, truth: np.ndarray) -> tuple[float, float]:
     """How far (m, deg) a loop's measured transform is from the truth's."""
     expected: Transform = invert(truth[decision.target_frame]) @ truth[decision.source_frame]
-    error = invert(expected) @ decision.measured
-    return float(np.linalg.norm(error[:3, 3])), math.degrees(float(rotation_angle(error[:3, :3])))
+    return motion_difference(expected, decision.measured)
 
 
 def measure(
