@@ -51,6 +51,7 @@ INFERENCE_FIELDS: tuple[str, ...] = (
     "inference_sharpening",
     "gated_rounds",
     "gate_radius",
+    "weighted_svd",
 )
 """Fields no tensor was fitted to: a file can run with other values than it was trained with.
 
@@ -63,9 +64,13 @@ clouds and runs on 1024 (``weights/MODEL_CARD.md``). The crop and the point coun
 def parse_inference_setting(name: str, value: str) -> object:
     """A command-line ``NAME``, ``VALUE`` pair as :meth:`VcrConfig.with_changes` takes it: the name must be
     one of :data:`INFERENCE_FIELDS`; integer fields are parsed here (they are strict, as a weight file
-    stores plain ints), other values are left to the field's own validation."""
+    stores plain ints) and so are true/false ones, other values are left to the field's own validation."""
     if name not in INFERENCE_FIELDS:
         raise ConfigError(f"{name!r} is not an inference-only setting; valid: {', '.join(INFERENCE_FIELDS)}")
+    if VcrConfig.model_fields[name].annotation is bool:
+        if value.strip().lower() not in ("true", "false"):
+            raise ConfigError(f"{name}: expected true or false; got {value!r}")
+        return value.strip().lower() == "true"
     if VcrConfig.model_fields[name].annotation is int:
         try:
             return int(value)
@@ -119,7 +124,11 @@ class VcrConfig(Settings):
         "at the edges of a sparse scan less.",
     )
     weighted_svd: bool = Field(
-        False, strict=True, description="Weight each key point by its self-attention weight in the SVD."
+        False,
+        strict=True,
+        description="Weight each key point by its self-attention weight in the pose head (no tensor "
+        "depends on it; a file trained with the matching objective, whose weights say which points have "
+        "a counterpart, runs with it).",
     )
     encoder: Encoder = Field("invariant", description="One of ENCODERS.")
     distance_bias: bool = Field(

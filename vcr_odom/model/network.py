@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Literal, get_args
 
 import torch
 from torch import Tensor, nn
@@ -20,14 +21,19 @@ from vcr_odom.errors import ConfigError
 from vcr_odom.model.attention import CrossAttention, SelfAttention
 from vcr_odom.model.config import VcrConfig
 from vcr_odom.model.correspondence import (
+    VirtualCorrespondences,
     feature_affinity,
     gated_virtual_points,
     robust_procrustes,
     to_homogeneous,
     virtual_correspondences,
+    weighted_procrustes,
 )
 from vcr_odom.model.encoder import LpdEncoder
 from vcr_odom.model.invariant_encoder import InvariantEncoder
+
+PoseHead = Literal["paper", "consensus", "full"]
+POSE_HEADS: tuple[str, ...] = get_args(PoseHead)
 
 
 @dataclass
@@ -48,6 +54,19 @@ class VcrOutput:
     source_features: Tensor  # (B, N, C) encoder features, reusable for the next pair
     target_features: Tensor  # (B, M, C)
     temperature: Tensor  # () the soft-pointer temperature used
+    affinity: Tensor  # (B, N, M) feature affinity of every source point to every target point
+
+
+@dataclass
+class Matches:
+    """What the network gives the pose head (:meth:`VCRNet.match_features`)."""
+
+    correspondences: VirtualCorrespondences
+    key_weights: Tensor  # (B, K) self-attention weight of each key point
+    source_weights: Tensor  # (B, N)
+    target_weights: Tensor  # (B, M)
+    affinity: Tensor  # (B, N, M)
+    temperature: Tensor  # ()
 
 
 class VCRNet(nn.Module):
@@ -87,8 +106,48 @@ class VCRNet(nn.Module):
         source_attended: tuple[Tensor, Tensor] | None = None,
         target_attended: tuple[Tensor, Tensor] | None = None,
     ) -> VcrOutput:
-        """Attention, virtual correspondences and SVD on already-encoded clouds. ``*_attended``: the
-        cloud's :meth:`attend` output where it was computed before (it is then not recomputed)."""
+        """Attention, virtual correspondences and the pose head on already-encoded clouds.
+        ``*_attended``: the cloud's :meth:`attend` output where it was computed before (it is then not
+        recomputed)."""
+        matches = self.match_features(
+            source_points,
+            source_features,
+            target_points,
+            target_features,
+            source_attended=source_attended,
+            target_attended=target_attended,
+        )
+        vcp = matches.correspondences
+        rotation, translation = self.pose_head(vcp, matches.key_weights, target_points)
+        return VcrOutput(
+            rotation=rotation,
+            translation=translation,
+            transform=to_homogeneous(rotation, translation),
+            key_points=vcp.key_points,
+            virtual_points=vcp.virtual_points,
+            key_indices=vcp.key_indices,
+            key_weights=matches.key_weights,
+            candidate_indices=vcp.candidate_indices,
+            pointer_weights=vcp.pointer_weights,
+            source_weights=matches.source_weights,
+            target_weights=matches.target_weights,
+            source_features=source_features,
+            target_features=target_features,
+            temperature=matches.temperature,
+            affinity=matches.affinity,
+        )
+
+    def match_features(
+        self,
+        source_points: Tensor,
+        source_features: Tensor,
+        target_points: Tensor,
+        target_features: Tensor,
+        *,
+        source_attended: tuple[Tensor, Tensor] | None = None,
+        target_attended: tuple[Tensor, Tensor] | None = None,
+    ) -> Matches:
+        """Everything before the pose head: attention, affinity, key points and virtual points."""
         psi_source, w_source = source_attended or self.attend(source_points, source_features)
         psi_target, w_target = target_attended or self.attend(target_points, target_features)
         phi_source, phi_target = self.cross_attention(psi_source, psi_target)
@@ -105,38 +164,47 @@ class VCRNet(nn.Module):
             source_weights=w_source,
         )
         key_weights = torch.gather(w_source, 1, vcp.key_indices)
-        svd_weights = key_weights if self.config.weighted_svd else None
+        return Matches(vcp, key_weights, w_source, w_target, affinity, temperature)
+
+    def pose_head(
+        self,
+        matches: VirtualCorrespondences,
+        key_weights: Tensor,
+        target_points: Tensor,
+        head: PoseHead = "full",
+    ) -> tuple[Tensor, Tensor]:
+        """R, t from the key points and their virtual points, by one of :data:`POSE_HEADS`:
+
+        - ``paper``: the paper's SVD (weighted by the key points' self-attention weights where
+          ``weighted_svd``), nothing else;
+        - ``consensus``: the consensus start and the Cauchy re-weighting (:func:`robust_procrustes`);
+        - ``full``: that, then the gated re-pointing rounds (inference only), as ``forward`` runs.
+
+        Why three: the consensus and the re-pointing are RANSAC and ICP in all but name, and can
+        register two scans from poor correspondences; the paper's head cannot, so it shows what the
+        features themselves are worth (``benchmarks/ablation.py``)."""
+        c = self.config
+        weights = key_weights if c.weighted_svd else None
+        if head == "paper":
+            return weighted_procrustes(matches.key_points, matches.virtual_points, weights)
+        if head not in POSE_HEADS:
+            raise ConfigError(f"pose head must be one of {', '.join(POSE_HEADS)}; got {head!r}")
         rotation, translation = robust_procrustes(
-            vcp.key_points,
-            vcp.virtual_points,
-            svd_weights,
-            iterations=self.config.robust_iterations,
-            scale=self.config.robust_scale,
-            hypotheses=self.config.consensus_hypotheses,
-            threshold=self.config.consensus_threshold,
-            seeds=self.config.consensus_seeds,
-            group=self.config.consensus_group,
+            matches.key_points,
+            matches.virtual_points,
+            weights,
+            iterations=c.robust_iterations,
+            scale=c.robust_scale,
+            hypotheses=c.consensus_hypotheses,
+            threshold=c.consensus_threshold,
+            seeds=c.consensus_seeds,
+            group=c.consensus_group,
         )
-        if not self.training and self.config.gated_rounds:
+        if head == "full" and not self.training and c.gated_rounds:
             rotation, translation = self._gated_rounds(
-                vcp.key_points, vcp.key_rows, target_points, rotation, translation, key_weights
+                matches.key_points, matches.key_rows, target_points, rotation, translation, key_weights
             )
-        return VcrOutput(
-            rotation=rotation,
-            translation=translation,
-            transform=to_homogeneous(rotation, translation),
-            key_points=vcp.key_points,
-            virtual_points=vcp.virtual_points,
-            key_indices=vcp.key_indices,
-            key_weights=key_weights,
-            candidate_indices=vcp.candidate_indices,
-            pointer_weights=vcp.pointer_weights,
-            source_weights=w_source,
-            target_weights=w_target,
-            source_features=source_features,
-            target_features=target_features,
-            temperature=temperature,
-        )
+        return rotation, translation
 
     def _gated_rounds(
         self,
