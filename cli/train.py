@@ -35,8 +35,9 @@ F = TypeVar("F", bound=Callable[..., Any])
 S = TypeVar("S", bound=Settings)
 
 SOURCE = ("data_root", "seqs", "copies", "frames", "stride")
-DATA = ("caches", "protocols", "augment", "max_motion", "reverse", "val_fraction")
+DATA = ("caches", "protocols", "augment", "augment_yaw", "max_motion", "reverse", "val_fraction")
 TRAINING = ("epochs", "batch_size", "lr", "seed", "device", "out", "checkpoint_every")
+OBJECTIVE = ("objective", "match_radius", "overlap_weight", "pose_weight", "correspondence_weight")
 NAMES = {"seqs": "--seq", "caches": "--cache", "protocols": "--protocol"}
 EXTRA: dict[str, dict[str, Any]] = {
     "data_root": {"envvar": "VCR_ODOM_DATA_ROOT", "show_envvar": True},
@@ -125,7 +126,7 @@ def cache(out: Path, **options: Any) -> None:
 
 @click.command("train")
 @_training_options
-@config_options(TrainConfig, ("init_weights",), NAMES, EXTRA)
+@config_options(TrainConfig, ("init_weights", *OBJECTIVE), NAMES, EXTRA)
 def train_command(**options: Any) -> None:
     """Train VCR-Net (correspondence loss; model chosen on the validation frames, never on test)."""
     _run("train", options)
@@ -140,7 +141,7 @@ def pretrain_command(**options: Any) -> None:
 
 def _run(task: str, options: dict[str, Any]) -> None:
     data = _settings(TrainingData, options, SOURCE + DATA)
-    config = _settings(TrainConfig, options, (*TRAINING, "select_on", "init_weights"))
+    config = _settings(TrainConfig, options, (*TRAINING, "select_on", "init_weights", *OBJECTIVE))
     with _progress(" + ".join(data.protocols)) as (frames, events):
         result = fit_on(
             task,

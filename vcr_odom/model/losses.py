@@ -8,6 +8,15 @@ Tikhonov term β‖e‖² is the optimiser's weight decay.
 
 Deviation: each sum is averaged per pair of the batch and then over the batch; a pair with no true (or
 no false) match contributes nothing to that term.
+
+Addition (:func:`matching_loss`, ``TrainConfig.objective = "matching"``): Loss_cor only asks the
+virtual point, a blend of J candidates, to land near the truth; it never asks the feature affinity to
+rank the right target point first, so a pose head that searches for consensus among the
+correspondences (RANSAC-like) does as well on random features as on trained ones. The matching loss
+trains what the features must do: a cross-entropy of each point's affinity row against the target
+points near its true position (both directions), a binary cross-entropy making each point's
+self-attention weight the probability that it has a counterpart in the other cloud, and a pose loss
+of the paper's head (virtual points + SVD weighted by those weights) on the pairs that overlap.
 Deviation: Algorithm 1 says "triplet loss with L1-norm regularization" without a formula; we use the
 margin triplet loss on Euclidean feature distances, max(0, d(a, p) - d(a, n) + margin), averaged over
 anchors and their m negatives, plus λ · mean_i |‖f_i‖ - 1| (an L1 penalty keeping each embedding near
@@ -19,9 +28,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import torch
+import torch.nn.functional as F
 from torch import Tensor
 
-from vcr_odom.model.correspondence import gather_points
+from vcr_odom.model.correspondence import gather_points, weighted_procrustes
 
 
 @dataclass
@@ -141,3 +151,99 @@ def triplet_pretraining_loss(
     regulariser = (norms - 1.0).abs().mean()
     loss = triplet + norm_weight * regulariser
     return TripletLoss(loss, triplet.detach(), regulariser.detach())
+
+
+@dataclass
+class MatchingLoss:
+    """The matching objective and its parts (all but ``loss`` detached)."""
+
+    loss: Tensor  # () differentiable
+    matching: Tensor  # () cross-entropy of the affinity rows and columns
+    overlap: Tensor  # () binary cross-entropy of the self-attention weights
+    pose: Tensor  # () the paper head's pose error on the overlapping pairs
+    inlier_ratio: Tensor  # () key points whose best candidate lies within ``radius`` of the truth
+    overlap_fraction: Tensor  # () source points with a target point within ``radius`` of the truth
+
+
+def matching_loss(
+    source_points: Tensor,
+    target_points: Tensor,
+    affinity: Tensor,
+    source_weights: Tensor,
+    target_weights: Tensor,
+    key_indices: Tensor,
+    key_points: Tensor,
+    virtual_points: Tensor,
+    rotation_gt: Tensor,
+    translation_gt: Tensor,
+    radius: float = 2.0,
+    overlap_weight: float = 1.0,
+    pose_weight: float = 0.5,
+    min_overlap: float = 0.3,
+) -> MatchingLoss:
+    """What the features must do for the registration, on one batch (B pairs; N source, M target points).
+
+    - matching: point i's affinity row ``(B, N, M)`` is a distribution over the target points; its
+      target puts mass ``exp(-d² / (2 (radius / 2)²))`` on the target points within ``radius`` metres
+      of where the truth moves point i (a down-sampled scan holds no exact counterpart, so the nearest
+      ones share it), and the cross-entropy is averaged over the points that have any; the same for
+      the columns (target to source).
+    - overlap: each point's self-attention weight (sigmoid) against whether it has a counterpart
+      within ``radius``, so that a low weight marks a point the other scan does not see.
+    - pose: the paper's head (:func:`~vcr_odom.model.correspondence.weighted_procrustes` of the key
+      points' virtual points, weighted by their self-attention weights), ``|R - R_gt|_F + |t - t_gt|``
+      per pair, averaged over the pairs whose overlap fraction is at least ``min_overlap`` (two scans
+      that share few surfaces carry little information about their motion).
+
+    The returned ``inlier_ratio`` is the network's own correspondence quality before any pose head:
+    the share of key points whose highest-affinity target point lies within ``radius`` of the truth.
+    """
+    moved = source_points @ rotation_gt.transpose(1, 2) + translation_gt.unsqueeze(1)
+    with torch.no_grad():
+        distance = torch.cdist(moved.float(), target_points.float())  # (B, N, M)
+        near = distance <= radius
+        sigma = radius / 2.0
+        closeness = torch.exp(-0.5 * (distance / sigma) ** 2) * near
+        source_has = near.any(dim=2)  # (B, N)
+        target_has = near.any(dim=1)  # (B, M)
+    logits = affinity.float()
+    row_target = closeness / closeness.sum(2, keepdim=True).clamp_min(1e-12)
+    col_target = closeness / closeness.sum(1, keepdim=True).clamp_min(1e-12)
+    row_ce = -(row_target * torch.log_softmax(logits, dim=2)).sum(2)  # (B, N)
+    col_ce = -(col_target * torch.log_softmax(logits, dim=1)).sum(1)  # (B, M)
+    matching = 0.5 * (_masked_mean(row_ce, source_has) + _masked_mean(col_ce, target_has))
+
+    overlap = 0.5 * (
+        F.binary_cross_entropy(source_weights.float().clamp(1e-6, 1 - 1e-6), source_has.float())
+        + F.binary_cross_entropy(target_weights.float().clamp(1e-6, 1 - 1e-6), target_has.float())
+    )
+
+    key_weights = torch.gather(source_weights, 1, key_indices).float()
+    rotation, translation = weighted_procrustes(key_points.float(), virtual_points.float(), key_weights)
+    pose_error = (rotation - rotation_gt).flatten(1).norm(dim=1) + (translation - translation_gt).norm(dim=1)
+    overlap_fraction = source_has.float().mean(dim=1)  # (B,)
+    usable = (overlap_fraction >= min_overlap).float()
+    pose = (pose_error * usable).sum() / usable.sum().clamp_min(1.0)
+
+    with torch.no_grad():
+        best = affinity.gather(1, key_indices.unsqueeze(-1).expand(-1, -1, affinity.shape[-1])).argmax(-1)
+        key_distance = distance.gather(1, key_indices.unsqueeze(-1).expand(-1, -1, distance.shape[-1]))
+        inlier = key_distance.gather(2, best.unsqueeze(-1)).squeeze(-1) <= radius
+    loss = matching + overlap_weight * overlap + pose_weight * pose
+    return MatchingLoss(
+        loss,
+        matching.detach(),
+        overlap.detach(),
+        pose.detach(),
+        inlier.float().mean(),
+        overlap_fraction.mean(),
+    )
+
+
+def _masked_mean(values: Tensor, mask: Tensor) -> Tensor:
+    """Mean of ``values`` ``(B, N)`` over ``mask`` per pair, then over the pairs that have any."""
+    mask_f = mask.to(values.dtype)
+    count = mask_f.sum(1)
+    per_pair = (values * mask_f).sum(1) / count.clamp_min(1.0)
+    has = (count > 0).to(values.dtype)
+    return (per_pair * has).sum() / has.sum().clamp_min(1.0)

@@ -59,6 +59,14 @@ class TrainingData(FrameSource):
         "yaw ±30°, tilt ±5°, ±5 m / ±1 m); repeat for both.",
     )
     augment: bool = Field(True, description=PairConfig.model_fields["augment"].description)
+    augment_yaw: float = Field(
+        30.0,
+        ge=0,
+        le=180,
+        allow_inf_nan=False,
+        description="Yaw range (± degrees) of the random motion of --augment and of same-scan pairs "
+        "(the paper's 30); 180 shows the network every heading, as a revisit from the other side does.",
+    )
     max_motion: float | None = Field(
         None,
         gt=0,
@@ -96,6 +104,7 @@ class TrainingData(FrameSource):
                 seed=seed,
                 max_motion=self.max_motion,
                 reverse=self.reverse,
+                yaw_deg=self.augment_yaw,
             )
             for protocol in self.protocols
         ]

@@ -57,10 +57,38 @@ class TrainConfig(Settings):
         description="Also write last.pt every this many steps inside an epoch, so that a killed run "
         "resumes mid-epoch (an epoch on 2 CPU cores can take hours); None = at epoch ends only.",
     )
-    select_on: Literal["loss", "rmse"] = Field(
+    objective: Literal["correspondence", "matching"] = Field(
+        "correspondence",
+        description="correspondence: the paper's Loss_cor on the virtual points (what the first "
+        "shipped weights were trained with). matching: the features must rank the right target points "
+        "first (cross-entropy of the affinity), the self-attention weight must say which points have a "
+        "counterpart, and the paper's head must get the pose (vcr_odom.model.losses.matching_loss).",
+    )
+    match_radius: float = Field(
+        2.0,
+        gt=0,
+        allow_inf_nan=False,
+        description="matching: metres from a point's true position within which a target point counts "
+        "as its counterpart (a down-sampled scan holds no exact one).",
+    )
+    overlap_weight: float = Field(
+        1.0, ge=0, allow_inf_nan=False, description="matching: weight of the overlap term."
+    )
+    pose_weight: float = Field(
+        0.5, ge=0, allow_inf_nan=False, description="matching: weight of the pose term."
+    )
+    correspondence_weight: float = Field(
+        0.1,
+        ge=0,
+        allow_inf_nan=False,
+        description="matching: weight of the paper's Loss_cor added to it (keeps the virtual points' blend "
+        "near the truth).",
+    )
+    select_on: Literal["loss", "rmse", "inliers"] = Field(
         "loss",
-        description="What picks best.safetensors: validation loss, or rotation RMSE / 1° + "
-        "translation RMSE / 0.25 m.",
+        description="What picks best.safetensors: validation loss; rotation RMSE / 1° + translation "
+        "RMSE / 0.25 m; or inliers, the validation share of key points whose best match lies within "
+        "match_radius of the truth (matching objective).",
     )
     init_weights: Path | None = Field(
         None, description="Start from these weights (e.g. pretrain's best.safetensors)."

@@ -408,7 +408,10 @@ def _finish(sums: dict[str, float], count: int, session: Session) -> dict[str, f
 
 
 def _score(metrics: dict[str, float], config: TrainConfig) -> float:
-    """Lower is better. ``rmse`` normalises each RMSE by the issue's target (1°, 0.25 m)."""
+    """Lower is better. ``rmse`` normalises each RMSE by the issue's target (1°, 0.25 m); ``inliers``
+    is one minus the inlier ratio."""
     if config.select_on == "rmse" and "rot_rmse_deg" in metrics:
         return metrics["rot_rmse_deg"] / 1.0 + metrics["trans_rmse_m"] / 0.25
+    if config.select_on == "inliers" and "inlier_ratio" in metrics:
+        return 1.0 - metrics["inlier_ratio"]
     return metrics["loss"]

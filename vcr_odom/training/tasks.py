@@ -11,7 +11,12 @@ from torch import Tensor, nn
 from torch.nn.parallel import DistributedDataParallel
 
 from vcr_odom.model.config import VcrConfig
-from vcr_odom.model.losses import correspondence_loss, transformation_loss, triplet_pretraining_loss
+from vcr_odom.model.losses import (
+    correspondence_loss,
+    matching_loss,
+    transformation_loss,
+    triplet_pretraining_loss,
+)
 from vcr_odom.model.network import VCRNet
 from vcr_odom.training.config import TrainConfig
 
@@ -43,7 +48,8 @@ class Task:
 
 
 class Registration(Task):
-    """Loss_cor trained; Loss_trans and the pose errors only monitored."""
+    """Loss_cor (or, with ``objective="matching"``, the matching loss plus a share of Loss_cor) trained;
+    Loss_trans and the pose errors only monitored."""
 
     name = "train"
 
@@ -68,14 +74,40 @@ class Registration(Task):
         )
         rotation, translation = out.rotation.float().detach(), out.translation.float().detach()
         rot_err, trans_err = pose_errors(rotation, translation, r_gt, t_gt)
+        loss = cor.loss
         metrics = {
-            "loss": cor.loss.detach(),
             "trans_loss": transformation_loss(rotation, translation, r_gt, t_gt),
             "true_fraction": cor.true_fraction,
             "rot_sq_deg": rot_err.pow(2).mean(),
             "trans_sq_m": trans_err.pow(2).mean(),
         }
-        return cor.loss, metrics
+        if config.objective == "matching":
+            match = matching_loss(
+                batch["source"],
+                batch["target"],
+                out.affinity,
+                out.source_weights,
+                out.target_weights,
+                out.key_indices,
+                out.key_points,
+                out.virtual_points,
+                r_gt,
+                t_gt,
+                radius=config.match_radius,
+                overlap_weight=config.overlap_weight,
+                pose_weight=config.pose_weight,
+            )
+            loss = match.loss + config.correspondence_weight * cor.loss
+            metrics.update(
+                correspondence=cor.loss.detach(),
+                matching=match.matching,
+                overlap=match.overlap,
+                head_pose=match.pose,
+                inlier_ratio=match.inlier_ratio,
+                overlap_fraction=match.overlap_fraction,
+            )
+        metrics["loss"] = loss.detach()
+        return loss, metrics
 
 
 class Pretraining(Task):
