@@ -1,0 +1,309 @@
+"""Ablation of VCR-Net: which part of a registration is the network's, regime by regime.
+
+Why: the pose head (a consensus of random triples and compatible seeds, Cauchy re-weighting, gated
+re-pointing) is RANSAC and ICP in all but name; fed any reasonable correspondences it may register two
+scans by itself. So the same pairs are registered with the head fed by the features of
+
+- ``weights``: the weight file under test;
+- ``scrambled``: the same file with every tensor's values randomly permuted (same shapes, same value
+  distribution; the checks on load accept it);
+- ``random-init``: a fresh initialisation of the same configuration;
+- ``fpfh``: a hand-crafted descriptor (open3d's FPFH, computed on the scan voxel-thinned at
+  ``FPFH_VOXEL_M`` and read at the network's points), with the same affinity, key points and pointer;
+
+and each feature set is read by the three heads of :meth:`VCRNet.pose_head` (``paper``: virtual points +
+SVD; ``consensus``: no re-pointing; ``full``). A figure that does not move when the weights are
+scrambled is not the network's. The network's own correspondence quality is reported before any head:
+the share of key points whose virtual point lies within ``INLIER_RADIUS_M`` of where the truth puts
+them.
+
+Every variant sees the same network inputs (each frame pre-processed once, as ``run`` does it) and each
+frame is encoded once per variant, for every pair it belongs to.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from numpy.typing import NDArray
+
+from vcr_odom.errors import ConfigError
+from vcr_odom.jsonsafe import json_safe
+from vcr_odom.model.config import VcrConfig
+from vcr_odom.model.correspondence import feature_affinity, virtual_correspondences
+from vcr_odom.model.network import POSE_HEADS, VCRNet
+from vcr_odom.model.weights import load_weights
+
+FEATURES: tuple[str, ...] = ("weights", "scrambled", "random-init", "fpfh")
+INLIER_RADIUS_M = 1.0
+"""A virtual point within this distance of the truth is right: the consensus's support radius."""
+FPFH_VOXEL_M = 0.5
+"""FPFH is computed on the scan thinned to this voxel (normals over 2, features over 5 voxels: the
+project's FPFH baseline), not on the network's sparse points, where it would see too little."""
+SUCCESS_ROT_DEG = 2.0
+SUCCESS_TRANS_M = 0.5
+
+
+@dataclass
+class AblationPair:
+    """One registration problem: frame ``source`` onto frame ``target`` of ``sequence``, truth
+    ``T_target_source``; ``label`` names its regime row (e.g. ``kitti 5 apart``)."""
+
+    label: str
+    sequence: str
+    target: int
+    source: int
+    truth: NDArray[np.float64]
+
+
+@dataclass
+class PairSet:
+    """The pairs of one sequence and how to read its frames (``frame(index)`` -> raw points)."""
+
+    sequence: str
+    frame: Callable[[int], NDArray[np.float32]]
+    pairs: list[AblationPair]
+
+
+@dataclass
+class AblationRow:
+    """One regime x feature set x head: success, errors and the correspondences' inlier ratio."""
+
+    regime: str
+    features: str
+    head: str
+    num_pairs: int
+    inlier_ratio: float
+    success_rate: float
+    rot_rmse_deg: float
+    trans_rmse_m: float
+    length_ratio: float
+    successes: list[bool] = field(repr=False, default_factory=list)
+
+    def to_dict(self) -> dict[str, Any]:
+        return json_safe({k: v for k, v in self.__dict__.items() if k != "successes"})
+
+
+# ---------------------------------------------------------------------------------- feature sets
+
+
+def scrambled_copy(net: VCRNet, seed: int = 0) -> VCRNet:
+    """The same network with each tensor's values permuted (seeded): same shapes, same distribution of
+    values per tensor, none of the learned arrangement."""
+    generator = torch.Generator().manual_seed(seed)
+    scrambled = VCRNet(net.config)
+    state = {}
+    for name, tensor in net.state_dict().items():
+        flat = tensor.detach().reshape(-1)
+        state[name] = flat[torch.randperm(flat.numel(), generator=generator)].reshape(tensor.shape).clone()
+    scrambled.load_state_dict(state)
+    return scrambled.eval()
+
+
+def random_init(config: VcrConfig, seed: int = 0) -> VCRNet:
+    """A fresh initialisation of ``config`` (seeded), never trained."""
+    torch.manual_seed(seed)
+    return VCRNet(config).eval()
+
+
+def feature_networks(weights: Path, seed: int = 0) -> dict[str, VCRNet]:
+    """The network of each learned feature set; every one runs with the file's inference settings."""
+    net, config, _ = load_weights(weights, device="cpu")
+    net.eval()
+    return {"weights": net, "scrambled": scrambled_copy(net, seed), "random-init": random_init(config, seed)}
+
+
+def fpfh_descriptors(raw: NDArray[np.float32], points: NDArray[np.float32]) -> NDArray[np.float32]:
+    """Unit-length FPFH of the scan ``raw`` (thinned to :data:`FPFH_VOXEL_M`) at each of ``points``."""
+    import open3d as o3d
+
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(raw, dtype=np.float64)[:, :3]))
+    cloud = cloud.voxel_down_sample(FPFH_VOXEL_M)
+    search = o3d.geometry.KDTreeSearchParamHybrid
+    cloud.estimate_normals(search(radius=2 * FPFH_VOXEL_M, max_nn=30))
+    features = o3d.pipelines.registration.compute_fpfh_feature(
+        cloud, search(radius=5 * FPFH_VOXEL_M, max_nn=100)
+    )
+    descriptors = np.asarray(features.data, dtype=np.float32).T  # (V, 33)
+    tree = o3d.geometry.KDTreeFlann(cloud)
+    rows = [tree.search_knn_vector_3d(p.astype(np.float64), 1)[1][0] for p in points]
+    chosen = descriptors[rows]
+    return chosen / np.maximum(np.linalg.norm(chosen, axis=1, keepdims=True), 1e-9)
+
+
+# ------------------------------------------------------------------------------------ evaluation
+
+
+@dataclass
+class _Frame:
+    points: torch.Tensor  # (1, N, 3) the network input
+    raw: NDArray[np.float32]
+
+
+class _FeatureSet:
+    """One feature set's per-frame work (encoder and self-attention, or FPFH), done once per frame."""
+
+    def __init__(self, name: str, net: VCRNet | None) -> None:
+        self.name, self.net = name, net
+        self._done: dict[int, Any] = {}
+
+    def of(self, frame: _Frame) -> Any:
+        key = id(frame)
+        if key not in self._done:
+            if self.net is None:
+                descriptors = fpfh_descriptors(frame.raw, frame.points[0].numpy())
+                self._done[key] = torch.from_numpy(descriptors).unsqueeze(0)
+            else:
+                features = self.net.encode(frame.points)
+                self._done[key] = (features, self.net.attend(frame.points, features))
+        return self._done[key]
+
+
+@dataclass
+class _Outcome:
+    inlier_ratio: float
+    estimates: dict[str, NDArray[np.float64]]  # head -> T_target_source
+
+
+@torch.inference_mode()
+def register_variants(
+    reference: VCRNet, feature_set: _FeatureSet, source: _Frame, target: _Frame, truth: NDArray[np.float64]
+) -> _Outcome:
+    """One feature set's correspondences on one pair, their inlier ratio, and every head's pose.
+    FPFH's correspondences are made and solved by ``reference`` (the file under test) with unit
+    weights; a network's by that network."""
+    src, tgt = source.points, target.points
+    if feature_set.net is None:
+        sharpened = reference.temperature / reference.config.inference_sharpening
+        affinity = feature_affinity(feature_set.of(source), feature_set.of(target), sharpened)
+        config = reference.config
+        matches = virtual_correspondences(src, tgt, affinity, config.key_points(src.shape[1]), config.top_j)
+        key_weights = torch.ones(matches.key_indices.shape, dtype=src.dtype)
+        head_net = reference
+    else:
+        head_net = feature_set.net
+        (f_src, a_src), (f_tgt, a_tgt) = feature_set.of(source), feature_set.of(target)
+        found = head_net.match_features(src, f_src, tgt, f_tgt, source_attended=a_src, target_attended=a_tgt)
+        matches, key_weights = found.correspondences, found.key_weights
+    r_gt = torch.as_tensor(truth[:3, :3], dtype=src.dtype)
+    t_gt = torch.as_tensor(truth[:3, 3], dtype=src.dtype)
+    expected = matches.key_points[0] @ r_gt.T + t_gt
+    inliers = (matches.virtual_points[0] - expected).norm(dim=-1) <= INLIER_RADIUS_M
+    estimates = {}
+    for head in POSE_HEADS:
+        rotation, translation = head_net.pose_head(matches, key_weights, tgt, head)
+        transform = np.eye(4)
+        transform[:3, :3] = rotation[0].double().numpy()
+        transform[:3, 3] = translation[0].double().numpy()
+        estimates[head] = transform
+    return _Outcome(float(inliers.float().mean()), estimates)
+
+
+def _pose_errors(estimate: NDArray[np.float64], truth: NDArray[np.float64]) -> tuple[float, float]:
+    error = np.linalg.solve(truth, estimate)
+    cos = np.clip((np.trace(error[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)
+    return math.degrees(math.acos(cos)), float(np.linalg.norm(estimate[:3, 3] - truth[:3, 3]))
+
+
+def summarise(
+    regime: str, features: str, head: str, outcomes: list[_Outcome], truths: list[NDArray]
+) -> AblationRow:
+    rot, trans, ok = [], [], []
+    est_len, true_len = 0.0, 0.0
+    for outcome, truth in zip(outcomes, truths, strict=True):
+        r, t = _pose_errors(outcome.estimates[head], truth)
+        rot.append(r)
+        trans.append(t)
+        ok.append(r <= SUCCESS_ROT_DEG and t <= SUCCESS_TRANS_M)
+        est_len += float(np.linalg.norm(outcome.estimates[head][:3, 3]))
+        true_len += float(np.linalg.norm(truth[:3, 3]))
+    return AblationRow(
+        regime=regime,
+        features=features,
+        head=head,
+        num_pairs=len(outcomes),
+        inlier_ratio=float(np.mean([o.inlier_ratio for o in outcomes])),
+        success_rate=float(np.mean(ok)),
+        rot_rmse_deg=float(np.sqrt(np.mean(np.square(rot)))),
+        trans_rmse_m=float(np.sqrt(np.mean(np.square(trans)))),
+        length_ratio=est_len / true_len if true_len > 0 else float("nan"),
+        successes=ok,
+    )
+
+
+def run_ablation(
+    weights: Path,
+    pair_sets: Sequence[PairSet],
+    features: Sequence[str] = FEATURES,
+    seed: int = 0,
+    progress: Callable[[int, int], None] | None = None,
+) -> list[AblationRow]:
+    """Every regime of ``pair_sets`` x feature set x head (rows in that order)."""
+    unknown = sorted(set(features) - set(FEATURES))
+    if unknown or not features:
+        raise ConfigError(f"--features: give some of {', '.join(FEATURES)}; got {', '.join(features)}")
+    from vcr_odom.registration.vcr import VcrRegistrar
+
+    nets = feature_networks(weights, seed)
+    registrar = VcrRegistrar(weights, device="cpu", seed=seed)
+    outcomes: dict[tuple[str, str], list[_Outcome]] = {}
+    truths: dict[str, list[NDArray[np.float64]]] = {}
+    total = sum(len(s.pairs) for s in pair_sets) * len(features)
+    done = 0
+    for pair_set in pair_sets:
+        frames = {
+            index: _Frame(torch.from_numpy(registrar.network_input(raw)).unsqueeze(0), raw)
+            for index in sorted({i for pair in pair_set.pairs for i in (pair.source, pair.target)})
+            for raw in [np.asarray(pair_set.frame(index), dtype=np.float32)]
+        }
+        for pair in pair_set.pairs:
+            truths.setdefault(pair.label, []).append(pair.truth)
+        for name in features:
+            feature_set = _FeatureSet(name, nets.get(name))
+            for pair in pair_set.pairs:
+                outcome = register_variants(
+                    nets["weights"], feature_set, frames[pair.source], frames[pair.target], pair.truth
+                )
+                outcomes.setdefault((pair.label, name), []).append(outcome)
+                done += 1
+                if progress is not None:
+                    progress(done, total)
+    return [
+        summarise(regime, name, head, outcomes[(regime, name)], truths[regime])
+        for regime in truths
+        for name in features
+        for head in POSE_HEADS
+    ]
+
+
+def markdown_table(rows: Sequence[AblationRow]) -> str:
+    """One line per regime x feature set: inlier ratio, then success and RMSE under each head."""
+    lines = [
+        "| regime | pairs | features | inliers (1 m) | paper head: success, rot / trans RMSE | "
+        "consensus | full head | full: length ratio |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    keyed = {(r.regime, r.features, r.head): r for r in rows}
+    seen: list[tuple[str, str]] = []
+    for row in rows:
+        if (row.regime, row.features) not in seen:
+            seen.append((row.regime, row.features))
+    for regime, features in seen:
+        cells = []
+        for head in POSE_HEADS:
+            r = keyed[(regime, features, head)]
+            cells.append(f"{r.success_rate:.0%}, {r.rot_rmse_deg:.2f}° / {r.trans_rmse_m:.3f} m")
+        first = keyed[(regime, features, POSE_HEADS[0])]
+        full = keyed[(regime, features, "full")]
+        lines.append(
+            f"| {regime} | {first.num_pairs} | {features} | {first.inlier_ratio:.1%} | "
+            + " | ".join(cells)
+            + f" | {full.length_ratio:.3f} |"
+        )
+    return "\n".join(lines).replace("%", " %")
