@@ -16,9 +16,11 @@ from vcr_odom.evaluation.ablation import (
     run_ablation,
     scrambled_copy,
     summarise,
+    surest,
 )
 from vcr_odom.evaluation.gap_sweep import true_motions
 from vcr_odom.model import VcrConfig
+from vcr_odom.model.correspondence import virtual_correspondences
 from vcr_odom.model.network import POSE_HEADS, VCRNet
 from vcr_odom.model.weights import default_weights_path
 from vcr_odom.synth import SynthSequence
@@ -90,3 +92,15 @@ def test_an_ablation_run_gives_every_regime_feature_set_and_head(drive: SynthSeq
     with pytest.raises(ConfigError, match="--features"):
         run_ablation(default_weights_path("default"), [pair_set], features=("sift",))
     assert set(FEATURES) == {"weights", "scrambled", "random-init", "fpfh"}
+
+
+def test_the_paper_head_reads_the_best_ranked_quarter_of_the_key_points() -> None:
+    source = torch.randn(1, 40, 3)
+    target = source + 1.0
+    affinity = torch.full((1, 40, 40), -10.0)  # each row's best match is its own point
+    affinity[0, torch.arange(40), torch.arange(40)] = torch.linspace(-4.0, 0.0, 40)  # surer down the rows
+    matches = virtual_correspondences(source, target, affinity, 40, 4)
+    kept, weights = surest(matches, torch.arange(40.0).unsqueeze(0))
+    assert kept.key_points.shape == (1, 10, 3) and weights.shape == (1, 10)
+    assert kept.key_indices[0].tolist() == list(range(39, 29, -1))  # the ten surest rows, surest first
+    assert torch.equal(kept.virtual_points, matches.virtual_points[:, :10])

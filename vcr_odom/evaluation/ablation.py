@@ -12,7 +12,10 @@ scans by itself. So the same pairs are registered with the head fed by the featu
   ``FPFH_VOXEL_M`` and read at the network's points), with the same affinity, key points and pointer;
 
 and each feature set is read by the three heads of :meth:`VCRNet.pose_head` (``paper``: virtual points +
-SVD; ``consensus``: no re-pointing; ``full``). A figure that does not move when the weights are
+SVD; ``consensus``: no re-pointing; ``full``). The paper's head reads the surest ``PAPER_KEY_FRACTION``
+of the key points (the paper's Top-K, with K = N / 4 rather than 7 N / 8): an SVD has no outlier
+rejection, and at 7 N / 8 it reads every sampled point, most of which no features can match at 80 m
+(docs/benchmarks.md, "What the network contributes", gives the choice). A figure that does not move when the weights are
 scrambled is not the network's. The network's own correspondence quality is reported before any head:
 the share of key points whose virtual point lies within ``INLIER_RADIUS_M`` of where the truth puts
 them.
@@ -25,7 +28,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -36,7 +39,7 @@ from numpy.typing import NDArray
 from vcr_odom.errors import ConfigError
 from vcr_odom.jsonsafe import json_safe
 from vcr_odom.model.config import VcrConfig
-from vcr_odom.model.correspondence import feature_affinity, virtual_correspondences
+from vcr_odom.model.correspondence import VirtualCorrespondences, feature_affinity, virtual_correspondences
 from vcr_odom.model.network import POSE_HEADS, VCRNet
 from vcr_odom.model.weights import load_weights
 
@@ -46,6 +49,8 @@ INLIER_RADIUS_M = 1.0
 FPFH_VOXEL_M = 0.5
 """FPFH is computed on the scan thinned to this voxel (normals over 2, features over 5 voxels: the
 project's FPFH baseline), not on the network's sparse points, where it would see too little."""
+PAPER_KEY_FRACTION = 0.25
+"""Share of the key points (the best-matched, as the network ranks them) the paper's head reads."""
 SUCCESS_ROT_DEG = 2.0
 SUCCESS_TRANS_M = 0.5
 
@@ -197,12 +202,24 @@ def register_variants(
     inliers = (matches.virtual_points[0] - expected).norm(dim=-1) <= INLIER_RADIUS_M
     estimates = {}
     for head in POSE_HEADS:
-        rotation, translation = head_net.pose_head(matches, key_weights, tgt, head)
+        read, weights = surest(matches, key_weights) if head == "paper" else (matches, key_weights)
+        rotation, translation = head_net.pose_head(read, weights, tgt, head)
         transform = np.eye(4)
         transform[:3, :3] = rotation[0].double().numpy()
         transform[:3, 3] = translation[0].double().numpy()
         estimates[head] = transform
     return _Outcome(float(inliers.float().mean()), estimates)
+
+
+def surest(
+    matches: VirtualCorrespondences, key_weights: torch.Tensor, fraction: float = PAPER_KEY_FRACTION
+) -> tuple[VirtualCorrespondences, torch.Tensor]:
+    """The first ``fraction`` of the key points (they come ranked, best match first)."""
+    keep = max(3, round(fraction * matches.key_points.shape[1]))
+    return (
+        VirtualCorrespondences(*(getattr(matches, f.name)[:, :keep] for f in fields(matches))),
+        key_weights[:, :keep],
+    )
 
 
 def _pose_errors(estimate: NDArray[np.float64], truth: NDArray[np.float64]) -> tuple[float, float]:

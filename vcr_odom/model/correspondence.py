@@ -54,7 +54,7 @@ def gather_points(points: Tensor, index: Tensor) -> Tensor:
 class VirtualCorrespondences:
     """Key points of the source and their virtual points in the target, with how they were made."""
 
-    key_indices: Tensor  # (B, K) long, rows of the source
+    key_indices: Tensor  # (B, K) long, rows of the source, best match (key_scores) first
     key_points: Tensor  # (B, K, 3) source xyz
     virtual_points: Tensor  # (B, K, 3) target-frame xyz
     candidate_indices: Tensor  # (B, K, J) long, rows of the target
