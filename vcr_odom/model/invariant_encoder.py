@@ -31,7 +31,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
-from vcr_odom.model.encoder import EdgeConv, gather_neighbours, knn_indices
+from vcr_odom.model.encoder import EdgeConv, gather_neighbours, knn_indices, neighbour_max
 
 EDGE_UNIT = 0.1
 """Edge lengths are given to the network in units of ``EDGE_UNIT`` network units (3 m at the default
@@ -105,7 +105,7 @@ class GeometricEdgeConv(EdgeConv):
         w_centre = self.linear.weight[:, self.in_dim :] - w_neighbour
         neighbour = features @ w_neighbour.T
         centre = features @ w_centre.T + self.linear.bias
-        strongest = (gather_neighbours(neighbour, index) + self.geometry(geometry)).amax(dim=2)
+        strongest = neighbour_max(gather_neighbours(neighbour, index) + self.geometry(geometry))
         return torch.relu(strongest + centre)
 
 
@@ -134,10 +134,10 @@ class InvariantEncoder(nn.Module):
         geometry = edge_geometry(xyz, spatial_graph)
         shape = local_shape(xyz, spatial_graph)
         edge_input = torch.cat([geometry, shape.unsqueeze(2).expand(-1, -1, k, -1)], dim=-1)
-        x0 = torch.relu(self.local_point(torch.relu(self.local_edge(edge_input)).amax(dim=2)))
+        x0 = torch.relu(self.local_point(neighbour_max(torch.relu(self.local_edge(edge_input)))))
         feature_graph = knn_indices(x0, k)
         edges = self.graph1(x0, feature_graph)
-        x1 = edges.amax(dim=2)
-        x2 = torch.relu(self.graph2(edges)).amax(dim=2)
+        x1 = neighbour_max(edges)
+        x2 = neighbour_max(torch.relu(self.graph2(edges)))
         x3 = self.spatial.pooled_with_geometry(x2, spatial_graph, geometry)
         return self.output(torch.cat([x0, x1, x2, x3], dim=-1))
