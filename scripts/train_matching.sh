@@ -6,9 +6,14 @@
 #
 # WORK_DIR (default runs/matching) receives the synthetic drives, the frame caches and the run. The run
 # writes last.pt every CHECKPOINT_EVERY steps (default 50) and at each epoch's end: re-running
-# continues a stopped run from its last step (--resume), so the training can span sessions. STEPS=prepare
-# builds the drives and caches only. THREADS (default 2) sets torch's CPU threads; EPOCHS (default 4)
-# the cosine schedule; INIT (default the shipped file) the starting weights.
+# continues a stopped run from its last step (--resume). THREADS (default 2) sets torch's CPU threads;
+# EPOCHS (default 4) the cosine schedule; INIT (default the shipped file) the starting weights.
+#
+# Across sessions (a run takes hours on 2 cores): stop it with SIGTERM just after last.pt changed (it
+# loses the steps since), then `STEPS=save bash scripts/train_matching.sh` copies its checkpoint,
+# history and best weights to CARRIED (default weights/training/matching) to be committed. A WORK_DIR
+# with no run of its own resumes from CARRIED; the drives and caches are rebuilt byte for byte from
+# their seeds. STEPS=prepare builds the drives and caches only.
 # Held out of training: kitti-sample frames 40-59, synthetic seeds 1xx, 3xx, 4xx, 6xx, 7xx and 9xx
 # (benchmarks/ablation.py evaluates on 9xx).
 set -euo pipefail
@@ -20,6 +25,21 @@ INIT=${INIT:-weights/vcr-default.safetensors}
 EPOCHS=${EPOCHS:-4}
 export OMP_NUM_THREADS=${THREADS:-2}
 mkdir -p "$WORK"
+CARRIED=${CARRIED:-weights/training/matching}
+RUN_FILES=(last.pt history.json run.json best.safetensors)
+if [ "${STEPS:-all}" = save ]; then
+  [ -f "$WORK/train/last.pt" ] || { echo "no run to save in $WORK/train" >&2; exit 1; }
+  mkdir -p "$CARRIED"
+  for f in "${RUN_FILES[@]}"; do [ ! -f "$WORK/train/$f" ] || cp "$WORK/train/$f" "$CARRIED/$f.tmp"; done
+  for f in "${RUN_FILES[@]}"; do [ ! -f "$CARRIED/$f.tmp" ] || mv "$CARRIED/$f.tmp" "$CARRIED/$f"; done
+  echo "saved the run of $WORK/train to $CARRIED"
+  exit 0
+fi
+if [ ! -f "$WORK/train/last.pt" ] && [ -f "$CARRIED/last.pt" ]; then
+  mkdir -p "$WORK/train"
+  for f in "${RUN_FILES[@]}"; do [ ! -f "$CARRIED/$f" ] || cp "$CARRIED/$f" "$WORK/train/$f"; done
+  echo "resuming the run carried in $CARRIED" >&2
+fi
 
 # seed frames | synth options. Spinning drives of the first shipped training set, then the hard cases:
 # narrow fields of view (Avia, Mid-360), handheld tilts, voxel-thinned keyframes, routes that come back
@@ -61,6 +81,7 @@ done
   --input-max-range 80 --num-points 512 --out "$WORK/cache_kitti_0_40.npz" >/dev/null
 CACHES+=(--cache "$WORK/cache_kitti_0_40.npz")
 [ "${STEPS:-all}" = prepare ] && { echo "caches: ${CACHES[*]}"; exit 0; }
+
 
 # Both protocols, odometry pairs of every two cached frames at most 15 m apart (in space, so a route
 # that comes back gives revisit pairs), both directions, any heading on top (--augment-yaw 180).
