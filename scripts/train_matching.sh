@@ -68,14 +68,7 @@ CACHES=()
 # shellcheck source=benchmarks/synth_drives.sh
 . benchmarks/synth_drives.sh
 for spec in "${DRIVES[@]}"; do
-  make_drive "$WORK" "$VCR" "$spec" >/dev/null
-  seed=${spec%% *}
-  # Keyframe sets and 2 Hz drives: every frame; 10 Hz drives: every fourth (neighbours are near-copies).
-  stride=4
-  case "$spec" in *--keyframes* | *--rate-hz*) stride=1 ;; esac
-  [ -f "$WORK/cache_$seed.npz" ] || "$VCR" cache --data-root "$WORK/synth" --seq "$seed" --stride "$stride" \
-    --copies 2 --input-max-range 80 --num-points 512 --out "$WORK/cache_$seed.npz" >/dev/null
-  CACHES+=(--cache "$WORK/cache_$seed.npz")
+  CACHES+=(--cache "$(cache_drive "$WORK" "$VCR" "$spec" 2 512)")
 done
 [ -f "$WORK/cache_kitti_0_40.npz" ] || "$VCR" cache --data-root "$KITTI" --seq 00 --frames 0:40 --copies 4 \
   --input-max-range 80 --num-points 512 --out "$WORK/cache_kitti_0_40.npz" >/dev/null

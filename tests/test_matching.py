@@ -9,26 +9,14 @@ from pathlib import Path
 
 import pytest
 import torch
+from test_train import TINY
 
 from vcr_odom.errors import ConfigError
-from vcr_odom.model import VcrConfig
 from vcr_odom.model.config import parse_inference_setting
 from vcr_odom.model.correspondence import virtual_correspondences
 from vcr_odom.model.losses import matching_loss
 from vcr_odom.model.network import POSE_HEADS, VCRNet
 from vcr_odom.training import TrainConfig, train
-
-TINY = VcrConfig(
-    num_points=64,
-    k=8,
-    point_dim=16,
-    graph_dim=16,
-    spatial_dim=16,
-    feature_dim=32,
-    heads=2,
-    ff_dim=32,
-    top_j=4,
-)
 
 
 def _yaw(angle: float) -> torch.Tensor:
