@@ -144,7 +144,7 @@ def test_training_with_the_matching_objective_raises_the_inlier_ratio(tmp_path: 
     config = TrainConfig(
         epochs=12,
         batch_size=4,
-        lr=1e-2,
+        lr=3e-3,
         device="cpu",
         out=tmp_path,
         seed=1,
