@@ -82,10 +82,13 @@ class Registration(Task):
             "trans_sq_m": trans_err.pow(2).mean(),
         }
         if config.objective == "matching":
+            # Validation runs in eval mode, whose pointer is sharpened: the cross-entropy is taken at
+            # the learned temperature in both, so that the two figures compare.
+            sharpening = 1.0 if module.training else net_config.inference_sharpening
             match = matching_loss(
                 batch["source"],
                 batch["target"],
-                out.affinity,
+                out.affinity / sharpening,
                 out.source_weights,
                 out.target_weights,
                 out.key_indices,
