@@ -14,9 +14,9 @@ scans by itself. So the same pairs are registered with the head fed by the featu
 and each feature set is read by the three heads of :meth:`VCRNet.pose_head` (``paper``: virtual points +
 SVD; ``consensus``: no re-pointing; ``full``). The paper's head reads the surest ``PAPER_KEY_FRACTION``
 of the key points (the paper's Top-K, with K = N / 4 rather than 7 N / 8): an SVD has no outlier
-rejection, and at 7 N / 8 it reads every sampled point, most of which no features can match at 80 m
-(docs/benchmarks.md, "What the network contributes", gives the choice). A figure that does not move when the weights are
-scrambled is not the network's. The network's own correspondence quality is reported before any head:
+rejection, and at 7 N / 8 it reads the worst-matched points too (docs/benchmarks.md, "What the
+network contributes", gives the choice). A figure that does not move when the weights are scrambled
+is not the network's. The network's own correspondence quality is reported before any head:
 the share of key points whose virtual point lies within ``INLIER_RADIUS_M`` of where the truth puts
 them.
 
@@ -26,7 +26,6 @@ frame is encoded once per variant, for every pair it belongs to.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -38,6 +37,7 @@ from numpy.typing import NDArray
 
 from vcr_odom.errors import ConfigError
 from vcr_odom.jsonsafe import json_safe
+from vcr_odom.metrics import pair_errors
 from vcr_odom.model.config import VcrConfig
 from vcr_odom.model.correspondence import VirtualCorrespondences, feature_affinity, virtual_correspondences
 from vcr_odom.model.network import POSE_HEADS, VCRNet
@@ -51,8 +51,6 @@ FPFH_VOXEL_M = 0.5
 project's FPFH baseline), not on the network's sparse points, where it would see too little."""
 PAPER_KEY_FRACTION = 0.25
 """Share of the key points (the best-matched, as the network ranks them) the paper's head reads."""
-SUCCESS_ROT_DEG = 2.0
-SUCCESS_TRANS_M = 0.5
 
 
 @dataclass
@@ -222,35 +220,28 @@ def surest(
     )
 
 
-def _pose_errors(estimate: NDArray[np.float64], truth: NDArray[np.float64]) -> tuple[float, float]:
-    error = np.linalg.solve(truth, estimate)
-    cos = np.clip((np.trace(error[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)
-    return math.degrees(math.acos(cos)), float(np.linalg.norm(estimate[:3, 3] - truth[:3, 3]))
-
-
 def summarise(
-    regime: str, features: str, head: str, outcomes: list[_Outcome], truths: list[NDArray]
+    regime: str, features: str, head: str, outcomes: list[_Outcome], truths: list[NDArray[np.float64]]
 ) -> AblationRow:
-    rot, trans, ok = [], [], []
-    est_len, true_len = 0.0, 0.0
-    for outcome, truth in zip(outcomes, truths, strict=True):
-        r, t = _pose_errors(outcome.estimates[head], truth)
-        rot.append(r)
-        trans.append(t)
-        ok.append(r <= SUCCESS_ROT_DEG and t <= SUCCESS_TRANS_M)
-        est_len += float(np.linalg.norm(outcome.estimates[head][:3, 3]))
-        true_len += float(np.linalg.norm(truth[:3, 3]))
+    """One row: the pairs' errors (:func:`vcr_odom.metrics.pair_errors`, success under 2 deg and 0.5 m)
+    and mean inlier ratio, and the length ratio mean |t_est| / mean |t_true|."""
+    estimates = np.stack([outcome.estimates[head] for outcome in outcomes])
+    truth = np.stack(truths)
+    errors = pair_errors(estimates, truth)
+    true_length = float(np.linalg.norm(truth[:, :3, 3], axis=1).mean())
     return AblationRow(
         regime=regime,
         features=features,
         head=head,
         num_pairs=len(outcomes),
         inlier_ratio=float(np.mean([o.inlier_ratio for o in outcomes])),
-        success_rate=float(np.mean(ok)),
-        rot_rmse_deg=float(np.sqrt(np.mean(np.square(rot)))),
-        trans_rmse_m=float(np.sqrt(np.mean(np.square(trans)))),
-        length_ratio=est_len / true_len if true_len > 0 else float("nan"),
-        successes=ok,
+        success_rate=errors.success_rate,
+        rot_rmse_deg=errors.rot_rmse_deg,
+        trans_rmse_m=errors.trans_rmse_m,
+        length_ratio=float(np.linalg.norm(estimates[:, :3, 3], axis=1).mean()) / true_length
+        if true_length > 0
+        else float("nan"),
+        successes=errors.success.tolist(),
     )
 
 
