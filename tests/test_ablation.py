@@ -54,13 +54,14 @@ def _turned(yaw_deg: float, shift: float) -> np.ndarray:
 def test_rows_score_success_rmse_and_length_against_hand_computed_figures() -> None:
     truth = _turned(0.0, 4.0)
     outcomes = [
-        _Outcome(0.5, {head: truth for head in POSE_HEADS}),  # right
-        _Outcome(0.3, {head: truth @ _turned(3.0, 0.0) for head in POSE_HEADS}),  # 3 deg off
-        _Outcome(0.1, {head: _turned(0.0, 3.0) for head in POSE_HEADS}),  # 1 m short
+        _Outcome(0.5, 0.9, {head: truth for head in POSE_HEADS}),  # right
+        _Outcome(0.3, 0.8, {head: truth @ _turned(3.0, 0.0) for head in POSE_HEADS}),  # 3 deg off
+        _Outcome(0.1, 0.7, {head: _turned(0.0, 3.0) for head in POSE_HEADS}),  # 1 m short
     ]
     row = summarise("r", "weights", "full", outcomes, [truth] * 3)
     assert row.num_pairs == 3
     assert row.inlier_ratio == pytest.approx(0.3)
+    assert row.overlap == pytest.approx(0.8)
     assert row.success_rate == pytest.approx(1 / 3)
     assert row.rot_rmse_deg == pytest.approx(np.sqrt(9 / 3), rel=1e-6)
     # The turned estimate keeps its translation; the short one is 1 m off.
@@ -84,7 +85,7 @@ def test_an_ablation_run_gives_every_regime_feature_set_and_head(drive: SynthSeq
     )
     rows = run_ablation(default_weights_path("default"), [pair_set], features=("weights", "fpfh"))
     assert [(r.features, r.head) for r in rows] == [(f, h) for f in ("weights", "fpfh") for h in POSE_HEADS]
-    assert all(r.num_pairs == 3 and 0.0 <= r.inlier_ratio <= 1.0 for r in rows)
+    assert all(r.num_pairs == 3 and 0.0 <= r.inlier_ratio <= 1.0 and 0.5 < r.overlap <= 1.0 for r in rows)
     full = next(r for r in rows if r.features == "weights" and r.head == "full")
     assert full.success_rate == 1.0  # the shipped file registers consecutive frames of a car drive
     table = markdown_table(rows)
