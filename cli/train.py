@@ -37,7 +37,7 @@ S = TypeVar("S", bound=Settings)
 SOURCE = ("data_root", "seqs", "copies", "frames", "stride")
 DATA = ("caches", "protocols", "augment", "augment_yaw", "max_motion", "reverse", "val_fraction")
 TRAINING = ("epochs", "batch_size", "lr", "seed", "device", "out", "checkpoint_every")
-OBJECTIVE = ("objective", "match_radius", "overlap_weight", "pose_weight", "correspondence_weight")
+OBJECTIVE = ("objective", "counterpart_radius", "overlap_weight", "pose_weight", "correspondence_weight")
 NAMES = {"seqs": "--seq", "caches": "--cache", "protocols": "--protocol"}
 EXTRA: dict[str, dict[str, Any]] = {
     "data_root": {"envvar": "VCR_ODOM_DATA_ROOT", "show_envvar": True},

@@ -156,3 +156,12 @@ def test_training_with_the_matching_objective_raises_the_inlier_ratio(tmp_path: 
     assert last["val_inlier_ratio"] > first["val_inlier_ratio"] + 0.05, (first, last)
     assert last["train_matching"] < 0.85 * first["train_matching"]
     assert result.best_score == pytest.approx(1.0 - max(h["val_inlier_ratio"] for h in result.history))
+
+
+def test_selecting_on_inliers_needs_the_objective_that_measures_them() -> None:
+    with pytest.raises(ConfigError, match="needs objective 'matching'"):
+        TrainConfig(select_on="inliers")
+    assert (
+        TrainConfig(select_on="inliers", objective="matching", counterpart_radius=1.5).counterpart_radius
+        == 1.5
+    )

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from vcr_odom.device import DEVICES
 from vcr_odom.model.network import VCRNet
@@ -64,7 +64,7 @@ class TrainConfig(Settings):
         "first (cross-entropy of the affinity), the self-attention weight must say which points have a "
         "counterpart, and the paper's head must get the pose (vcr_odom.model.losses.matching_loss).",
     )
-    match_radius: float = Field(
+    counterpart_radius: float = Field(
         2.0,
         gt=0,
         allow_inf_nan=False,
@@ -88,11 +88,18 @@ class TrainConfig(Settings):
         "loss",
         description="What picks best.safetensors: validation loss; rotation RMSE / 1° + translation "
         "RMSE / 0.25 m; or inliers, the validation share of key points whose best match lies within "
-        "match_radius of the truth (matching objective).",
+        "counterpart_radius of the truth (matching objective).",
     )
     init_weights: Path | None = Field(
         None, description="Start from these weights (e.g. pretrain's best.safetensors)."
     )
+
+    @model_validator(mode="after")
+    def _inliers_need_matching(self) -> TrainConfig:
+        if self.select_on == "inliers" and self.objective != "matching":
+            raise ValueError("select_on 'inliers' needs objective 'matching' (only it measures them)")
+        return self
+
     deterministic: bool = Field(
         False, description="torch.use_deterministic_algorithms, for bit-reproducible runs."
     )

@@ -96,7 +96,7 @@ class Registration(Task):
                 out.virtual_points,
                 r_gt,
                 t_gt,
-                radius=config.match_radius,
+                radius=config.counterpart_radius,
                 overlap_weight=config.overlap_weight,
                 pose_weight=config.pose_weight,
             )
