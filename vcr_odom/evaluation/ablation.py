@@ -8,8 +8,8 @@ scans by itself. So the same pairs are registered with the head fed by the featu
 - ``scrambled``: the same file with every tensor's values randomly permuted (same shapes, same value
   distribution; the checks on load accept it);
 - ``random-init``: a fresh initialisation of the same configuration;
-- ``fpfh``: a hand-crafted descriptor (open3d's FPFH, computed on the scan voxel-thinned at
-  ``FPFH_VOXEL_M`` and read at the network's points), with the same affinity, key points and pointer;
+- ``fpfh``: a hand-crafted descriptor (open3d's FPFH, computed on the scan as the FPFH baseline
+  prepares it and read at the network's points), with the same affinity, key points and pointer;
 
 and each feature set is read by the three heads of :meth:`VCRNet.pose_head` (``paper``: virtual points +
 SVD; ``consensus``: no re-pointing; ``full``). The paper's head reads the surest ``PAPER_KEY_FRACTION``
@@ -27,7 +27,7 @@ frame is encoded once per variant, for every pair it belongs to.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
@@ -41,14 +41,13 @@ from vcr_odom.metrics import pair_errors
 from vcr_odom.model.config import VcrConfig
 from vcr_odom.model.correspondence import VirtualCorrespondences, feature_affinity, virtual_correspondences
 from vcr_odom.model.network import POSE_HEADS, VCRNet
-from vcr_odom.model.weights import load_weights
 
 FEATURES: tuple[str, ...] = ("weights", "scrambled", "random-init", "fpfh")
 INLIER_RADIUS_M = 1.0
 """A virtual point within this distance of the truth is right: the consensus's support radius."""
-FPFH_VOXEL_M = 0.5
-"""FPFH is computed on the scan thinned to this voxel (normals over 2, features over 5 voxels: the
-project's FPFH baseline), not on the network's sparse points, where it would see too little."""
+FPFH_MAX_RANGE_M = 80.0
+"""FPFH is computed on the scan as the FPFH baseline thins it (0.5 m voxels), not on the network's
+sparse points, where it would see too little; over the crop the shipped file sees."""
 PAPER_KEY_FRACTION = 0.25
 """Share of the key points (the best-matched, as the network ranks them) the paper's head reads."""
 
@@ -88,10 +87,9 @@ class AblationRow:
     rot_rmse_deg: float
     trans_rmse_m: float
     length_ratio: float
-    successes: list[bool] = field(repr=False, default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
-        return json_safe({k: v for k, v in self.__dict__.items() if k != "successes"})
+        return json_safe(dict(self.__dict__))
 
 
 # ---------------------------------------------------------------------------------- feature sets
@@ -116,26 +114,28 @@ def random_init(config: VcrConfig, seed: int = 0) -> VCRNet:
     return VCRNet(config).eval()
 
 
-def feature_networks(weights: Path, seed: int = 0) -> dict[str, VCRNet]:
-    """The network of each learned feature set; every one runs with the file's inference settings."""
-    net, config, _ = load_weights(weights, device="cpu")
+def feature_networks(net: VCRNet, seed: int = 0) -> dict[str, VCRNet]:
+    """The network of each learned feature set, from the file's ``net``; every one runs with the file's
+    inference settings."""
     net.eval()
-    return {"weights": net, "scrambled": scrambled_copy(net, seed), "random-init": random_init(config, seed)}
+    return {
+        "weights": net,
+        "scrambled": scrambled_copy(net, seed),
+        "random-init": random_init(net.config, seed),
+    }
 
 
 def fpfh_descriptors(raw: NDArray[np.float32], points: NDArray[np.float32]) -> NDArray[np.float32]:
-    """Unit-length FPFH of the scan ``raw`` (thinned to :data:`FPFH_VOXEL_M`) at each of ``points``."""
+    """Unit-length FPFH at each of ``points``, computed as the project's FPFH baseline computes it on
+    the scan ``raw`` (:class:`~vcr_odom.registration.fpfh.FpfhRansac`'s voxel and radii), over the
+    network's crop, and read at each point's nearest voxel."""
     import open3d as o3d
 
-    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(raw, dtype=np.float64)[:, :3]))
-    cloud = cloud.voxel_down_sample(FPFH_VOXEL_M)
-    search = o3d.geometry.KDTreeSearchParamHybrid
-    cloud.estimate_normals(search(radius=2 * FPFH_VOXEL_M, max_nn=30))
-    features = o3d.pipelines.registration.compute_fpfh_feature(
-        cloud, search(radius=5 * FPFH_VOXEL_M, max_nn=100)
-    )
-    descriptors = np.asarray(features.data, dtype=np.float32).T  # (V, 33)
-    tree = o3d.geometry.KDTreeFlann(cloud)
+    from vcr_odom.registration.fpfh import FpfhRansac
+
+    prepared = FpfhRansac(max_range=FPFH_MAX_RANGE_M).prepare(raw)
+    descriptors = np.asarray(prepared.features.data, dtype=np.float32).T  # (V, 33)
+    tree = o3d.geometry.KDTreeFlann(prepared.cloud)
     rows = [tree.search_knn_vector_3d(p.astype(np.float64), 1)[1][0] for p in points]
     chosen = descriptors[rows]
     return chosen / np.maximum(np.linalg.norm(chosen, axis=1, keepdims=True), 1e-9)
@@ -246,7 +246,6 @@ def summarise(
         length_ratio=float(np.linalg.norm(estimates[:, :3, 3], axis=1).mean()) / true_length
         if true_length > 0
         else float("nan"),
-        successes=errors.success.tolist(),
     )
 
 
@@ -263,8 +262,8 @@ def run_ablation(
         raise ConfigError(f"--features: give some of {', '.join(FEATURES)}; got {', '.join(features)}")
     from vcr_odom.registration.vcr import VcrRegistrar
 
-    nets = feature_networks(weights, seed)
     registrar = VcrRegistrar(weights, device="cpu", seed=seed)
+    nets = feature_networks(registrar.model, seed)
     outcomes: dict[tuple[str, str], list[_Outcome]] = {}
     truths: dict[str, list[NDArray[np.float64]]] = {}
     total = sum(len(s.pairs) for s in pair_sets) * len(features)
