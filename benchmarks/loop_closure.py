@@ -9,7 +9,7 @@ Per sequence:
 - **ATE** (SE(3)-aligned, evo, as kiss-icp and KISS-SLAM report it) of the odometry and of the
   map's optimised trajectory, and their ratio; the JSON also has the origin-aligned ATE (a heading
   error at the first frame turns the whole run, and no loop can see it).
-- **Revisits**: nodes whose true position lies within 5 m of a node driven at least ``--min-loop-path``
+- **Revisits**: nodes whose true position lies within 5 m of a node driven at least ``min_loop_path_m``
   metres before (ground truth decides, not the odometry). They come in passages (consecutive revisit
   nodes); a passage is closed when an accepted loop starts in it. Nodes within 10 m of path of an
   accepted loop's source count as *covered*.
@@ -103,13 +103,13 @@ def score_loops(
     loops: dict[str, Any],
     odometry_poses: np.ndarray,
     map_poses: np.ndarray,
-    min_loop_path: float,
+    min_loop_path_m: float,
 ) -> dict[str, Any]:
     """ATE, revisits closed and false closures of one map (see the module doc): ``loops`` as
     ``loops.json`` holds it, ``gt`` every frame's true pose (frames ``frame_indices``)."""
     frame_position = {f: k for k, f in enumerate(frame_indices)}
     nodes = [(frame_position[n["frame"]], n["path_m"]) for n in loops["nodes"]]
-    passages = revisit_passages(gt, [p for p, _ in nodes], min_loop_path)
+    passages = revisit_passages(gt, [p for p, _ in nodes], min_loop_path_m)
     accepted = [c for c in loops["candidates"] if c["accepted"]]
     false, right, farthest = [], [], 0.0
     for loop in accepted:
@@ -178,7 +178,7 @@ def score(
         loops,
         outcome.odometry.poses,
         outcome.poses,
-        settings.min_loop_path,
+        settings.min_loop_path_m,
     )
     return {
         "sequence": outcome.sequence.name,

@@ -3,19 +3,24 @@ loop phase and the graph of ``vcr-odom map``. Not a test: run
 
     .venv/bin/python benchmarks/loop_drift.py --sequence WORK/indoor/sequences/902 \
         [--sequence ...] [--scale 0.02 --yaw 0.05 --pitch 0.01] \
-        [--max-heading-drift 3 --max-heading-drift 10] [--json out.json]
+        [--set candidate_confidence=0.999 --set odometry_confidence=0.9999 ...] [--json out.json]
 
 Why: the synthetic drives' own odometry drifts 0.01-0.5 % of the path, real recordings 1-3 % (the
 team's Avia campus loops: ATE 0.77 and 1.69 m on ~60 m). The drift added is systematic, the way a
 scan matcher's drifts: every step's translation scaled by ``1 + scale`` and turned by ``yaw`` (and
 ``pitch``) degrees per metre driven. Each (scale, yaw, pitch) given runs on the same frames; the
 nodes are recorded once per drift from the drifted poses, as ``map`` records them from its odometry,
-and each drift bound given (``--max-drift``, ``--max-heading-drift``: ``map``'s options) runs on them.
+and the loop phase runs on them with ``map``'s loop settings (``--set NAME=VALUE`` replaces one, a
+field of ``LoopSettings``, as in ``benchmarks/loop_replay.py``): the candidates and the verification
+judge a loop by the odometry's own propagated uncertainty, which an added drift it does not know of
+exceeds.
 
-Per sequence and drift: the drifted trajectory's ATE (SE(3)-aligned) and its end-point error against
-the path (the drift the loops must undo), the map's ATE, revisit passages closed, loops accepted and
-false (more than 1 m / 3 deg off the truth) and the worst false one's error, and how many candidates the
-drift bound rejected. With no drift the odometry is the truth and the ratio is left out (nan).
+One row per sequence and drift: the drifted trajectory's ATE (SE(3)-aligned) and its end-point error
+against the path (the drift the loops must undo), the map's ATE, revisit passages closed, loops
+accepted and false (more than 1 m / 3 deg off the truth) and the worst false one's error, how many
+candidates asked the odometry for more than its uncertainty allows (``odometry``) and the factor the
+loops measured on the odometry's covariance. With no drift the odometry is the truth and the ratio is
+left out (nan).
 """
 
 from __future__ import annotations
@@ -45,11 +50,13 @@ from vcr_odom.geometry import (
 )
 from vcr_odom.loops import pipeline
 from vcr_odom.loops.nodes import Node, NodeRecorder
+from vcr_odom.loops.settings import LoopSettings
 from vcr_odom.metrics.evo_errors import ate_rpe
 from vcr_odom.registration.vcr import VcrRegistrar
 
 sys.path.insert(0, str(Path(__file__).parent))
 from loop_closure import FALSE_DEG, FALSE_M, revisit_passages
+from loop_replay import loop_options_set
 
 
 def drifted(truth: np.ndarray, scale: float, yaw_deg_per_m: float, pitch_deg_per_m: float) -> np.ndarray:
@@ -66,19 +73,11 @@ def drifted(truth: np.ndarray, scale: float, yaw_deg_per_m: float, pitch_deg_per
     return np.stack(poses)
 
 
-def record_nodes(sequence: Any, odometry: np.ndarray) -> list[Node]:
-    recorder = NodeRecorder()
+def record_nodes(sequence: Any, odometry: np.ndarray, options: LoopSettings) -> list[Node]:
+    recorder = NodeRecorder(options.node_spacing_m, options.node_angle_deg)
     for position in range(len(sequence)):
         recorder(position, odometry[position], sequence.frame(position))
     return recorder.finish()
-
-
-def loop_phase(
-    options: pipeline.LoopOptions, nodes: list[Node], odometry: np.ndarray, network: VcrRegistrar
-) -> tuple[list, np.ndarray]:
-    """``map``'s candidates, verification and graph on ``nodes`` recorded along ``odometry``."""
-    closed = pipeline.close_loops(options, network, nodes, odometry)
-    return closed.decisions, closed.poses
 
 
 def _error(decision: Any, truth: np.ndarray) -> tuple[float, float]:
@@ -88,32 +87,39 @@ def _error(decision: Any, truth: np.ndarray) -> tuple[float, float]:
 
 
 def measure(
-    path: Path, drift: tuple[float, float, float], bounds: list[tuple[float, float]], network: VcrRegistrar
-) -> list[dict[str, Any]]:
-    """One row per drift bound (``max_drift`` %, ``max_heading_drift`` deg / 100 m) on the drifted drive."""
+    path: Path, drift: tuple[float, float, float], options: LoopSettings, network: VcrRegistrar
+) -> dict[str, Any]:
+    """The row of one drive with ``drift`` added (scale, yaw and pitch deg / m), closed with ``options``."""
     sequence = open_sequence(path.name, data_root=path.parent.parent)
     truth = sequence.gt_poses
     if truth is None:
         raise SystemExit(f"{path}: no ground truth")
     odometry = drifted(truth, *drift)
-    nodes = record_nodes(sequence, odometry)
-    rows = []
-    for max_drift, max_heading_drift in bounds:
-        started = time.perf_counter()
-        options = pipeline.LoopOptions(max_drift=max_drift, max_heading_drift=max_heading_drift)
-        decisions, poses = loop_phase(options, nodes, odometry, network)
-        row = _row(truth, odometry, nodes, decisions, poses)
-        rows.append({"sequence": path.name, "scale": drift[0], "yaw_deg_per_m": drift[1],
-                     "pitch_deg_per_m": drift[2], "max_drift": max_drift, "max_heading_drift": max_heading_drift,
-                     **row, "seconds": time.perf_counter() - started})  # fmt: skip
-    return rows
+    nodes = record_nodes(sequence, odometry, options)
+    started = time.perf_counter()
+    closed = pipeline.close_loops(options, network, nodes, odometry)
+    row = _row(truth, odometry, nodes, closed.decisions, closed.poses, options.min_loop_path_m)
+    return {
+        "sequence": path.name,
+        "scale": drift[0],
+        "yaw_deg_per_m": drift[1],
+        "pitch_deg_per_m": drift[2],
+        **row,
+        "odometry_covariance_scale": closed.odometry_scale,
+        "seconds": time.perf_counter() - started,
+    }
 
 
 def _row(
-    truth: np.ndarray, odometry: np.ndarray, nodes: list[Node], decisions: list, poses: np.ndarray
+    truth: np.ndarray,
+    odometry: np.ndarray,
+    nodes: list[Node],
+    decisions: list,
+    poses: np.ndarray,
+    min_loop_path_m: float = LoopSettings().min_loop_path_m,
 ) -> dict:
     steps = np.linalg.norm(np.diff(truth[:, :3, 3], axis=0), axis=1)
-    passages = revisit_passages(truth, [node.position for node in nodes], pipeline.MIN_LOOP_PATH_M)
+    passages = revisit_passages(truth, [node.position for node in nodes], min_loop_path_m)
     accepted = [d for d in decisions if d.accepted]
     errors = [_error(d, truth) for d in accepted]
     false_m = [metres for metres, degrees in errors if metres > FALSE_M or degrees > FALSE_DEG]
@@ -134,7 +140,8 @@ def _row(
         "accepted": len(accepted),
         "false_closures": len(false_m),
         "worst_false_m": max(false_m, default=0.0),
-        "rejected_for_drift": pipeline.beyond_drift_bound(decisions),
+        "rejected_for_odometry": sum(d.check == "odometry" for d in decisions),
+        "inconsistent": sum(d.check == "inconsistent" for d in decisions),
     }
 
 
@@ -146,8 +153,15 @@ def main() -> None:
     parser.add_argument("--scale", type=float, action="append", help="translation scale error (0.02 = 2 %%)")
     parser.add_argument("--yaw", type=float, action="append", help="heading drift, deg per metre")
     parser.add_argument("--pitch", type=float, action="append", help="pitch drift, deg per metre")
-    parser.add_argument("--max-drift", type=float, action="append", help="map's --max-drift (%%)")
-    parser.add_argument("--max-heading-drift", type=float, action="append", help="map's, deg / 100 m")
+    parser.add_argument(
+        "--set",
+        dest="options_set",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="a loop setting for every drive (a LoopSettings field, e.g. odometry_confidence=0.9999); "
+        "repeatable",
+    )
     parser.add_argument("--json", type=Path)
     args = parser.parse_args()
     scales, yaws = args.scale or [0.0], args.yaw or [0.0]
@@ -156,26 +170,23 @@ def main() -> None:
     if {len(scales), len(yaws), len(pitches)} - {1, count}:
         raise SystemExit("--scale, --yaw and --pitch: give each once or as often as the longest of them")
     drifts = [(scales[k % len(scales)], yaws[k % len(yaws)], pitches[k % len(pitches)]) for k in range(count)]
-    defaults = pipeline.LoopOptions()
-    max_drifts = args.max_drift or [defaults.max_drift]
-    headings = args.max_heading_drift or [defaults.max_heading_drift]
-    bounds = [(d, h) for d in max_drifts for h in headings]
+    options_set = loop_options_set(args.options_set, parser)
+    options = LoopSettings(**options_set)
     network = VcrRegistrar()
     rows = [
-        row
+        measure(path, drift, options, network) | {"options_set": options_set}
         for path in track(args.sequence, "drives")
         for drift in drifts
-        for row in measure(path, drift, bounds, network)
     ]
     table = Table(title="loop closure under added drift")
     columns = [
         ("sequence", "sequence"), ("scale", "scale"), ("yaw_deg_per_m", "yaw deg/m"),
-        ("pitch_deg_per_m", "pitch deg/m"), ("max_drift", "max drift %"),
-        ("max_heading_drift", "max heading deg/100 m"), ("path_m", "path m"), ("end_error_m", "end error m"),
+        ("pitch_deg_per_m", "pitch deg/m"), ("path_m", "path m"), ("end_error_m", "end error m"),
         ("end_error_deg", "end error deg"), ("odometry_ate_m", "drifted ATE m"), ("map_ate_m", "map ATE m"),
         ("ate_ratio", "ratio"), ("passages_closed", "closed"), ("revisit_passages", "passages"),
         ("accepted", "loops"), ("false_closures", "false"), ("worst_false_m", "worst false m"),
-        ("rejected_for_drift", "beyond bound"),
+        ("rejected_for_odometry", "beyond odometry"), ("inconsistent", "inconsistent"),
+        ("odometry_covariance_scale", "covariance scale"),
     ]  # fmt: skip
     for _, title in columns:
         table.add_column(title)

@@ -10,8 +10,9 @@ Not a test: run
         [--set passage_attempts=1000 ...] [--candidates DIR]
 
 A recording holds what ``map`` hands its loop phase: the nodes (odometry poses, coarse clouds), every
-frame's pose, what the odometry said of each frame (flagged frames, fits), and the loop options
-(``--set NAME=VALUE`` replaces one of them, a field of ``LoopOptions``, for the replay). The
+frame's pose, what the odometry said of each frame, and the loop options
+(``--set NAME=VALUE`` replaces one of them, a field of ``LoopSettings``, for the replay; a recorded
+option this checkout no longer has is left at its default). The
 replay runs ``close_loops`` on it with the code of this checkout and scores it as
 ``benchmarks/loop_closure.py`` does (the same function): SE(3)-aligned ATE of the odometry and the map,
 revisit passages closed, loops kept and the false ones (more than 1 m / 3 deg off the truth, each
@@ -60,8 +61,8 @@ from vcr_odom.geometry import invert
 from vcr_odom.io import replacing
 from vcr_odom.loops import pipeline
 from vcr_odom.loops.nodes import NodeRecorder
-from vcr_odom.loops.odometry_doubts import OdometryDoubts
-from vcr_odom.loops.pipeline import LoopOptions, MapSettings, Phases, close_loops, loop_network, loops_json
+from vcr_odom.loops.pipeline import MapSettings, Phases, close_loops, loop_network, loops_json
+from vcr_odom.loops.settings import LoopSettings
 from vcr_odom.metrics.evo_errors import ate_rpe
 from vcr_odom.odometry.loop import run_odometry
 from vcr_odom.odometry.outputs import ground_truth_for
@@ -95,7 +96,7 @@ def record(args: argparse.Namespace) -> None:
     sequence = selection.open()
     indices = selection.indices(sequence)
     odometry = method_for(settings)
-    recorder = NodeRecorder(settings.node_spacing, settings.node_angle)
+    recorder = NodeRecorder(settings.node_spacing_m, settings.node_angle_deg)
     run = run_odometry(
         sequence, odometry, indices, on_frame=lambda i, pose, points: recorder(i, pose, points)
     )
@@ -116,7 +117,7 @@ def record(args: argparse.Namespace) -> None:
             "device": settings.device,
             "vcr_points": settings.vcr_points,
         },
-        "loop_options": {k: getattr(settings, k) for k in LoopOptions.model_fields},
+        "loop_options": {k: getattr(settings, k) for k in LoopSettings.model_fields},
         "nodes": recorder.finish(),
         "poses": run.poses,
         "frame_indices": list(run.frame_indices),
@@ -134,7 +135,7 @@ def replay_one(
     candidates: Path | None = None,
 ) -> dict[str, Any]:
     """The loop phase on one recording, scored against its sequence's ground truth; ``options_set``
-    replaces recorded loop options (``LoopOptions`` field names, values as typed); ``truth_loops``
+    replaces recorded loop options (``LoopSettings`` field names, values as typed); ``truth_loops``
     adds the map's ATE with every loop the graph gets measured by the truth (see the module doc);
     ``candidates``: a folder that gets ``<sequence>.json``, every candidate's verdict and its errors
     against the truth (:func:`candidates_against_truth`)."""
@@ -150,10 +151,10 @@ def replay_one(
     network = loop_network(
         recording["network"]["weights"], recording["network"]["device"], recording["network"]["vcr_points"]
     )
-    doubts = OdometryDoubts.of_run(recording["frame_indices"], recording["per_frame_info"])
-    options = LoopOptions(**(recording["loop_options"] | (options_set or {})))
+    recorded = {k: v for k, v in recording["loop_options"].items() if k in LoopSettings.model_fields}
+    options = LoopSettings(**(recorded | (options_set or {})))
     phases = Phases(None)
-    closed = close_loops(options, network, recording["nodes"], recording["poses"], phases, doubts)
+    closed = close_loops(options, network, recording["nodes"], recording["poses"], phases)
     loops = loops_json(closed.decisions, recording["nodes"])
     if candidates is not None:
         judged = candidates_against_truth(gt, recording["frame_indices"], loops)
@@ -161,13 +162,11 @@ def replay_one(
         with replacing(candidates / f"{folder.name}.json") as temporary:
             temporary.write_text(json.dumps(judged, indent=1, default=_plain))
     row = score_loops(
-        gt, recording["frame_indices"], loops, recording["poses"], closed.poses, options.min_loop_path
+        gt, recording["frame_indices"], loops, recording["poses"], closed.poses, options.min_loop_path_m
     )
     if truth_loops:
-        with _loops_measured_by(gt):
-            ideal = close_loops(
-                options, network, recording["nodes"], recording["poses"], Phases(None), doubts
-            )
+        with _loops_measured_by(gt, recording["nodes"]):
+            ideal = close_loops(options, network, recording["nodes"], recording["poses"], Phases(None))
         row["truth_loops_map_ate_m"] = ate_rpe(ideal.poses, gt, alignment="se3").ate_trans_rmse_m
         split = error_split(recording["poses"], gt)
         row["odometry_rotation_only_ate_m"] = split.rotation_only_ate_m
@@ -180,24 +179,25 @@ def replay_one(
         "recorded_at": recording["commit"],
         "options_set": options_set or {},
         **row,
+        "odometry_covariance_scale": closed.odometry_scale,
         "loop_seconds": phases.seconds,
     }
 
 
 @contextmanager
-def _loops_measured_by(gt: np.ndarray) -> Iterator[None]:
+def _loops_measured_by(gt: np.ndarray, nodes: list[Any]) -> Iterator[None]:
     """The loop phase's pose graph given ``gt``'s ``T_target_source`` (every frame's true pose) in
     place of each loop's measured one; everything else as the verification left it."""
     optimise = pipeline.optimise
 
-    def with_true_loops(nodes: list[Any], loops: list[Any], *args: Any, **kwargs: Any) -> Any:
+    def with_true_loops(poses: Any, information: Any, loops: list[Any], *args: Any, **kwargs: Any) -> Any:
         true = [
             dataclasses.replace(
                 loop, transform=invert(gt[nodes[loop.target].position]) @ gt[nodes[loop.source].position]
             )
             for loop in loops
         ]
-        return optimise(nodes, true, *args, **kwargs)
+        return optimise(poses, information, true, *args, **kwargs)
 
     pipeline.optimise = with_true_loops
     try:
@@ -275,17 +275,17 @@ def right_loop_errors(rows: list[dict[str, Any]]) -> dict[str, tuple[int, float,
 
 
 def loop_options_set(items: list[str], parser: argparse.ArgumentParser) -> dict[str, str]:
-    """``--set`` items as {name: value}, each checked against ``LoopOptions`` now, not after the first
+    """``--set`` items as {name: value}, each checked against ``LoopSettings`` now, not after the first
     recording has replayed."""
     chosen: dict[str, str] = {}
     for item in items:
         name, equals, value = item.partition("=")
-        if not equals or name not in LoopOptions.model_fields:
+        if not equals or name not in LoopSettings.model_fields:
             parser.error(
-                f"--set {item}: expected NAME=VALUE with NAME one of {', '.join(LoopOptions.model_fields)}"
+                f"--set {item}: expected NAME=VALUE with NAME one of {', '.join(LoopSettings.model_fields)}"
             )
         try:
-            LoopOptions(**{name: value})
+            LoopSettings(**{name: value})
         except ConfigError as error:
             parser.error(f"--set {item}: {error}")
         chosen[name] = value
@@ -324,7 +324,7 @@ def main() -> None:
         action="append",
         default=[],
         metavar="NAME=VALUE",
-        help="replace a recorded loop option (a LoopOptions field, e.g. passage_attempts=1000); repeatable",
+        help="replace a recorded loop option (a LoopSettings field, e.g. passage_attempts=1000); repeatable",
     )
     again.add_argument(
         "--candidates",

@@ -4,10 +4,12 @@ cost in false ones. Not a test: run
     .venv/bin/python benchmarks/place_descriptors.py --sequence runs/loops/synth/sequences/803 \
         [--sequence ...] [--method vcr] [--json out.json] [--markdown table.md]
 
-``vcr-odom map`` proposes a loop candidate where the odometry puts a node within 5 m plus its drift
-bound of a node driven 30 m or more before. Beyond the bound only appearance can propose one. Two
-descriptors are measured on the same nodes (the map's: one every 3 m or 20 deg, each a 1 m voxel
-cloud), each node's earlier nodes searched for its best match at least 30 m of path before:
+``vcr-odom map`` proposes a loop candidate where the odometry's position for a node, with its
+uncertainty propagated along the path from a node driven 30 m or more before (each odometry edge's
+from its clouds' fit), allows a revisit within 5 m (a chi-square gate, ``candidate_confidence``).
+Beyond the gate only appearance can propose one. Two descriptors are measured on the same nodes (the
+map's: one every 3 m or 20 deg, each a 1 m voxel cloud), each node's earlier nodes searched for its best
+match at least 30 m of path before:
 
 - **map-closures** (KISS-SLAM's: ORB features of a bird's-eye density image, matched with RANSAC;
   ``vcr-odom[slam]``), on local submaps: the node clouds within 20 m of path joined by the odometry.
@@ -17,7 +19,7 @@ cloud), each node's earlier nodes searched for its best match at least 30 m of p
 A proposal is true when ground truth puts the two nodes within 10 m (close enough to register), false
 otherwise (a look-alike block). For each acceptance threshold: true and false proposals, the revisited
 nodes reached (a node truly within 5 m of one 30 m of path before, with a true proposal), and those of
-them the position search cannot reach (the odometry's distance beyond 5 m plus the drift bound).
+them the position search cannot reach (``beyond_gate``: the gate turns away every truly close node).
 """
 
 from __future__ import annotations
@@ -35,9 +37,10 @@ from numpy.typing import NDArray
 
 from vcr_odom.data.selection import FrameSelection
 from vcr_odom.geometry import invert
-from vcr_odom.loops.candidates import MIN_LOOP_PATH_M, REVISIT_RADIUS_M, find_candidates
-from vcr_odom.loops.drift import DriftModel
-from vcr_odom.loops.nodes import Node, NodeRecorder
+from vcr_odom.loops.candidates import Chain, chi2_gate, find_candidates, revisit_chi2
+from vcr_odom.loops.nodes import Node, NodeNormals, NodeRecorder
+from vcr_odom.loops.settings import LoopSettings
+from vcr_odom.loops.verify import odometry_information
 from vcr_odom.odometry.loop import run_odometry
 from vcr_odom.odometry.outputs import ground_truth_for
 from vcr_odom.odometry.run import RunSettings, method_for
@@ -47,6 +50,8 @@ TRUE_PLACE_M = 10.0
 """A proposal between nodes truly this close is a real revisit (registrable), farther a false one."""
 SUBMAP_PATH_M = 20.0
 """A map-closures submap: the node clouds within this path of the node (KISS-SLAM's are 100 m)."""
+SETTINGS = LoopSettings()
+"""``map``'s loop settings: its revisit radius, loop path and candidate gate."""
 INLIER_THRESHOLDS = (5, 10, 20, 40)
 SIMILARITY_THRESHOLDS = (0.95, 0.98, 0.99, 0.995)
 
@@ -64,7 +69,7 @@ def nodes_of(folder: Path, method: str) -> tuple[list[Node], NDArray[np.float64]
     selection = FrameSelection(data_root=folder.parent.parent, seq=folder.name)
     sequence = selection.open()
     indices = selection.indices(sequence)
-    recorder = NodeRecorder()
+    recorder = NodeRecorder(SETTINGS.node_spacing_m, SETTINGS.node_angle_deg)
     run_odometry(
         sequence, method_for(RunSettings(selection=selection, method=method)), indices, on_frame=recorder
     )
@@ -75,9 +80,15 @@ def nodes_of(folder: Path, method: str) -> tuple[list[Node], NDArray[np.float64]
     return nodes, gt[[node.position for node in nodes]]
 
 
+def odometry_chain(nodes: list[Node]) -> Chain:
+    """The nodes' odometry with each edge's uncertainty, as ``map``'s loop phase builds it."""
+    information = odometry_information(nodes, NodeNormals(nodes), SETTINGS)
+    return Chain(np.stack([node.pose for node in nodes]), information)
+
+
 def earlier(nodes: list[Node], j: int) -> NDArray[np.int64]:
     path = np.array([node.path_m for node in nodes])
-    return np.flatnonzero(path <= nodes[j].path_m - MIN_LOOP_PATH_M)
+    return np.flatnonzero(path <= nodes[j].path_m - SETTINGS.min_loop_path_m)
 
 
 def submap(nodes: list[Node], j: int) -> NDArray[np.float64]:
@@ -130,34 +141,36 @@ def network_proposals(nodes: list[Node], network: VcrRegistrar) -> list[Proposal
     return proposals
 
 
-def position_proposals(nodes: list[Node]) -> list[Proposal]:
-    return [Proposal(c.source, c.target, 1.0) for c in find_candidates(nodes, DriftModel())]
+def position_proposals(nodes: list[Node], chain: Chain) -> list[Proposal]:
+    return [Proposal(c.source, c.target, 1.0) for c in find_candidates(nodes, chain, SETTINGS)]
+
+
+def within_gate(chain: Chain, i: int, j: int) -> bool:
+    """Whether the candidates' chi-square gate lets node ``j`` be a revisit of node ``i`` (as
+    :func:`~vcr_odom.loops.candidates.find_candidates` tests it)."""
+    score, _ = revisit_chi2(chain, i, j, SETTINGS.revisit_radius_m)
+    return score <= chi2_gate(SETTINGS.candidate_confidence, 3)
 
 
 def score(
-    name: str, proposals: list[Proposal], thresholds: tuple[float, ...], nodes: list[Node], gt: NDArray
+    name: str,
+    proposals: list[Proposal],
+    thresholds: tuple[float, ...],
+    nodes: list[Node],
+    gt: NDArray,
+    chain: Chain,
 ) -> list[dict[str, Any]]:
     truth = gt[:, :3, 3]
-    odometry = np.stack([node.pose[:3, 3] for node in nodes])
-    drift = DriftModel()
     revisits, unreachable = set(), set()
     for j in range(len(nodes)):
         before = earlier(nodes, j)
         if len(before) == 0:
             continue
-        close = before[np.linalg.norm(truth[before] - truth[j], axis=1) <= REVISIT_RADIUS_M]
+        close = before[np.linalg.norm(truth[before] - truth[j], axis=1) <= SETTINGS.revisit_radius_m]
         if len(close):
             revisits.add(j)
-            # The position search reaches j where some truly close node is within its radius + bound.
-            reach = [
-                np.linalg.norm(odometry[i] - odometry[j])
-                <= REVISIT_RADIUS_M
-                + drift.translation_bound(
-                    nodes[j].path_m - nodes[i].path_m, nodes[j].position - nodes[i].position
-                )
-                for i in close
-            ]
-            if not any(reach):
+            # The position search reaches j where its gate lets through some truly close node.
+            if not any(within_gate(chain, int(i), j) for i in close):
                 unreachable.add(j)
     rows = []
     for threshold in thresholds:
@@ -173,8 +186,8 @@ def score(
                 "false": len(kept) - len(true),
                 "revisit_nodes": len(revisits),
                 "reached": len(reached),
-                "beyond_bound": len(unreachable),
-                "beyond_bound_reached": len(reached & unreachable),
+                "beyond_gate": len(unreachable),
+                "beyond_gate_reached": len(reached & unreachable),
             }
         )
     return rows
@@ -195,12 +208,13 @@ def main() -> None:
     rows = []
     for folder in args.sequence:
         nodes, gt = nodes_of(folder, args.method)
+        chain = odometry_chain(nodes)
         for name, proposals, thresholds in (
-            ("position (map)", position_proposals(nodes), (1.0,)),
+            ("position (map)", position_proposals(nodes, chain), (1.0,)),
             ("map-closures", map_closures_proposals(nodes), INLIER_THRESHOLDS),
             ("VCR-Net features", network_proposals(nodes, network), SIMILARITY_THRESHOLDS),
         ):
-            for row in score(name, proposals, thresholds, nodes, gt):
+            for row in score(name, proposals, thresholds, nodes, gt, chain):
                 rows.append({"sequence": folder.name, **row})
                 print(json.dumps(rows[-1]), flush=True)
     if args.json:

@@ -20,7 +20,7 @@ from vcr_odom.data.selection import FrameSelection
 from vcr_odom.errors import ConfigError
 from vcr_odom.evaluation.compare import DEFAULT_BASELINES, CompareSettings, Comparison, run_comparison
 from vcr_odom.evaluation.pairs import PAIR_KINDS
-from vcr_odom.loops.spec import parse_row_spec
+from vcr_odom.evaluation.rows import parse_row_spec
 from vcr_odom.model.weights import MAX_NETWORK_POINTS
 
 

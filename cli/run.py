@@ -25,7 +25,7 @@ from vcr_odom.cli.progress import (
 from vcr_odom.cli.tables import report_table
 from vcr_odom.data.selection import FrameSelection
 from vcr_odom.errors import ConfigError
-from vcr_odom.loops.spec import parse_row_spec
+from vcr_odom.evaluation.rows import parse_row_spec
 from vcr_odom.odometry.factory import DEFAULT_GLOBAL_POLISH, GLOBAL_METHODS
 from vcr_odom.odometry.polish import POLISHES
 from vcr_odom.odometry.run import RunSettings, run_sequence

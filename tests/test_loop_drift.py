@@ -53,13 +53,33 @@ def test_a_loop_off_by_a_metre_or_more_is_false_and_the_worst_is_named(loop_drif
         measured = invert(truth[target]) @ truth[source] @ make_transform(np.eye(3), [0.0, off_m, 0.0])
         return SimpleNamespace(
             source_frame=source, target_frame=target, measured=measured, accepted=accepted,
-            check="" if accepted else "drift_bound", candidate=SimpleNamespace(source=source // 5),
+            check="" if accepted else "odometry", candidate=SimpleNamespace(source=source // 5),
         )  # fmt: skip
 
     decisions = [loop(50, 10, 0.3), loop(55, 15, 2.5), loop(45, 5, 12.0), loop(40, 0, 20.0, accepted=False)]
     row = loop_drift._row(truth, truth, nodes, decisions, truth)
-    assert (row["accepted"], row["false_closures"], row["rejected_for_drift"]) == (3, 2, 1)
+    assert (row["accepted"], row["false_closures"], row["rejected_for_odometry"]) == (3, 2, 1)
+    assert row["inconsistent"] == 0 and row["candidates"] == 4
     assert row["worst_false_m"] == pytest.approx(12.0)
     assert math.isnan(row["ate_ratio"])  # no drift: the odometry is the truth
     drifted = loop_drift.drifted(truth, 0.05, 0.0, 0.0)
     assert loop_drift._row(truth, drifted, nodes, decisions[:1], truth)["worst_false_m"] == 0.0
+
+
+def test_a_drift_bound_is_refused_as_a_loop_setting(tmp_path: Path) -> None:
+    """``--set NAME=VALUE`` takes LoopSettings' fields (checked before any drive is read, as
+    benchmarks/loop_replay.py checks them): the drift bounds it used to loop over are gone."""
+    import subprocess
+    import sys
+
+    script = BENCHMARKS / "loop_drift.py"
+    never = tmp_path / "never" / "sequences" / "00"
+    item = "max_heading_drift=2"
+    done = subprocess.run(
+        [sys.executable, str(script), "--sequence", str(never), "--set", item],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert done.returncode == 2, done.stderr
+    assert f"--set {item}:" in done.stderr and "NAME one of loops, node_spacing_m" in done.stderr

@@ -14,7 +14,6 @@ import pytest
 from click.testing import CliRunner
 
 from vcr_odom.cli.main import cli
-from vcr_odom.loops.graph import loop_share
 
 SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "loop_replay.py"
 
@@ -54,16 +53,17 @@ def test_a_replay_scores_what_map_made_of_the_same_frames(small_synthetic_root: 
     assert abs(row["map_ate_m"] - metrics["ate_rpe"]["ate_se3_trans_rmse_m"]) < 1e-9
     assert abs(row["odometry_ate_m"] - metrics["odometry"]["ate_rpe"]["ate_se3_trans_rmse_m"]) < 1e-9
     assert set(row["loop_seconds"]) == {"loops", "graph"} and min(row["loop_seconds"].values()) >= 0
+    assert row["odometry_covariance_scale"] == metrics["loops"]["odometry_covariance_scale"]
     assert len(row["right_loop_errors"]) + row["false_closures"] == row["accepted"]
 
     # --set replaces a recorded option: 8 frames are too short a path for a loop at 30 m, not at 1 m
     assert row["candidates"] == 0 and row["options_set"] == {}
     wider, judged = tmp_path / "wider.json", tmp_path / "candidates"
-    options = ["--set", "min_loop_path=1", "--set", "revisit_radius=50", "--candidates", str(judged)]
+    options = ["--set", "min_loop_path_m=1", "--set", "revisit_radius_m=50", "--candidates", str(judged)]
     replayed = _replay("replay", str(recording), *options, "--json", str(wider))
     assert replayed.returncode == 0, replayed.stderr
     (row,) = json.loads(wider.read_text())
-    assert row["candidates"] > 0 and row["options_set"] == {"min_loop_path": "1", "revisit_radius": "50"}
+    assert row["candidates"] > 0 and row["options_set"] == {"min_loop_path_m": "1", "revisit_radius_m": "50"}
     assert len(row["right_loop_errors"]) + row["false_closures"] == row["accepted"]
 
     # --candidates: each candidate's verdict, and its errors against the truth as the score measures them
@@ -117,7 +117,8 @@ def test_a_file_that_is_not_a_recording_is_refused_by_name(tmp_path: Path) -> No
 @pytest.mark.parametrize(
     ("item", "says"),
     [
-        ("passage_atempts=3", "NAME one of node_spacing"),
+        ("passage_atempts=3", "NAME one of loops, node_spacing_m"),
+        ("max_heading_drift=2", "NAME one of loops, node_spacing_m"),
         ("passage_attempts", "expected NAME=VALUE"),
         ("passage_attempts=0", "passage_attempts: Input should be greater than or equal to 1"),
     ],
@@ -132,8 +133,8 @@ def test_a_loop_option_that_does_not_exist_or_fit_is_refused_by_name(
 
 @pytest.mark.slow
 def test_a_replay_keeps_the_loops_map_closed_on_a_walk(tmp_path: Path) -> None:
-    """The courtyard walk 881 (Avia, handheld, 600 frames), where `map` closes loops after an odometry
-    that flags frames: the replay must be handed the same nodes and doubts to keep the same loops."""
+    """The courtyard walk 881 (Avia, handheld, 600 frames), where `map` closes loops: the replay must be
+    handed the same nodes and settings to keep the same loops and measure the same odometry scale."""
     from vcr_odom.synth import generate_sequence
 
     generate_sequence(
@@ -162,10 +163,9 @@ def test_a_replay_keeps_the_loops_map_closed_on_a_walk(tmp_path: Path) -> None:
     assert metrics["loops"]["accepted"] >= 1, "the walk closes: nothing to compare otherwise"
     assert row["accepted"] == metrics["loops"]["accepted"]
     assert row["candidates"] == len(loops["candidates"])
-    scale = metrics["loops"]["odometry_sigma_scale"]
-    assert scale["final_loop_share"] == loop_share(metrics["loops"]["accepted"], scale["cycles"])
-    expected_outlier_scale = 1.0 if scale["median_ratio"] is None else max(scale["median_ratio"], 0.5)
-    assert abs(scale["outlier_scale"] - expected_outlier_scale) <= 1e-3
+    assert row["odometry_covariance_scale"] == pytest.approx(
+        metrics["loops"]["odometry_covariance_scale"], abs=1e-3
+    )
     assert abs(row["map_ate_m"] - metrics["ate_rpe"]["ate_se3_trans_rmse_m"]) < 1e-3
 
 
@@ -182,13 +182,14 @@ def test_truth_loops_hand_the_graph_each_loop_as_the_truth_measures_it(
     from vcr_odom.loops.graph import LoopEdge
 
     seen: list[list[LoopEdge]] = []
-    monkeypatch.setattr(pipeline, "optimise", lambda nodes, loops, *a, **k: seen.append(list(loops)))
+    monkeypatch.setattr(pipeline, "optimise", lambda poses, info, loops, *a, **k: seen.append(list(loops)))
     gt = np.stack([make_transform(np.eye(3), np.array([float(k), 0.5 * k, 0.0])) for k in range(6)])
     nodes = [SimpleNamespace(position=p) for p in (0, 2, 5)]
+    node_poses = gt[[0, 2, 5]]
     wrong = LoopEdge(2, 0, make_transform(np.eye(3), np.array([9.0, 9.0, 9.0])), np.eye(6))
-    with loop_replay._loops_measured_by(gt):
-        pipeline.optimise(nodes, [wrong])
-    pipeline.optimise(nodes, [wrong])
+    with loop_replay._loops_measured_by(gt, nodes):
+        pipeline.optimise(node_poses, [np.eye(6)] * 2, [wrong])
+    pipeline.optimise(node_poses, [np.eye(6)] * 2, [wrong])
 
     (given,), (after,) = seen
     np.testing.assert_allclose(given.transform, invert(gt[0]) @ gt[5])

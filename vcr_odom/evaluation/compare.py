@@ -22,8 +22,9 @@ from vcr_odom.data.selection import FrameSelection
 from vcr_odom.errors import ConfigError, MissingExtraError
 from vcr_odom.evaluation.pairs import PAIR_KINDS, PairProtocolResult, evaluate_pair_protocol, pair_sets
 from vcr_odom.evaluation.pairs_polish import PAIR_POLISHES
-from vcr_odom.loops.pipeline import LoopOptions, loop_network, map_and_save
-from vcr_odom.loops.spec import canonical_row, split_loops
+from vcr_odom.evaluation.rows import canonical_row, split_loops
+from vcr_odom.loops.pipeline import loop_network, map_and_save
+from vcr_odom.loops.settings import LoopSettings
 from vcr_odom.metrics import EvaluationReport
 from vcr_odom.model.weights import default_weights_path, read_weights
 from vcr_odom.odometry.chain import Consult, Odometry
@@ -289,7 +290,7 @@ def compare_methods(
                 odometry.network,
                 frame_indices,
                 folder / spec,
-                LoopOptions(),
+                LoopSettings(),
                 progress=progress,
                 on_saved=on_saved,
             )

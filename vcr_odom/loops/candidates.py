@@ -1,88 +1,178 @@
-"""Where to look for loops: places the odometry says it came back to, within its own uncertainty.
+"""The odometry's uncertainty along the path, and the loop candidates it allows.
 
-Each node is compared with the nodes driven at least ``min_loop_path_m`` before it; the nearest one
-by odometry position is a candidate when it lies within ``revisit_radius_m`` plus the drift the
-odometry may have gathered between the two visits (:class:`DriftModel`). One candidate every
-``attempt_spacing_m`` of path at most, and at most one every 1/``max_passage_attempts`` of a longer
-passage's length: a revisit is a passage of many nodes, a few loops along it pin it, and each
-candidate costs a registration (a 370 m return attempted every 6 m took 49 loops where 15 left its
-map within 1 cm of theirs). A passage's attempts start at its node closest to
-the earlier visit and go outwards: where two streets cross, the passage is a few nodes long and only
-the node at the crossing sees enough of the other street's scan (one taken from where the drift
-bound first admits a node may be 10-20 m short of it).
+Each odometry edge (node to next node) carries the information of a fit of the two nodes' clouds at
+the odometry's relative pose (:func:`~vcr_odom.loops.verify.fit_information`): weak along a corridor,
+weak where the clouds fit poorly. Propagated along the path to first order, the edges' covariances
+give the uncertainty of any node relative to any other (:class:`Chain`). A later node is a candidate
+for an earlier one where the position the odometry gives it, with that uncertainty and the sensor's
+revisit radius, allows a revisit (a chi-square gate); the same uncertainty later judges what a loop
+asks of the odometry, and whether two loops agree with each other.
+
+The world-frame formulation: an error ``xi`` on edge ``k`` (a left perturbation in node ``k``'s frame,
+as open3d's fit information is) moves every later node by ``Ad(P_k) xi`` in the world frame, so the
+covariance between any two nodes is a difference of prefix sums (one lookup per query).
 """
 
 from __future__ import annotations
 
+import dataclasses
+import math
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+from scipy.stats import chi2
 
 from vcr_odom.geometry import Transform, invert
-from vcr_odom.loops.drift import DriftModel
 from vcr_odom.loops.nodes import Node
+from vcr_odom.loops.settings import LoopSettings
 
-REVISIT_RADIUS_M = 5.0
-MIN_LOOP_PATH_M = 30.0
-ATTEMPT_SPACING_M = 6.0
-MAX_PASSAGE_ATTEMPTS = 20
+
+def adjoint(transform: Transform) -> NDArray[np.float64]:
+    """The 6x6 adjoint of ``transform`` for twists ordered (rotation, translation), open3d's order."""
+    rotation, translation = transform[:3, :3], transform[:3, 3]
+    skew = np.array(
+        [
+            [0.0, -translation[2], translation[1]],
+            [translation[2], 0.0, -translation[0]],
+            [-translation[1], translation[0], 0.0],
+        ]
+    )
+    result = np.zeros((6, 6))
+    result[:3, :3] = rotation
+    result[3:, 3:] = rotation
+    result[3:, :3] = skew @ rotation
+    return result
+
+
+def twist(transform: Transform) -> NDArray[np.float64]:
+    """A transform as (rotation vector, translation): the first-order error a covariance describes."""
+    return np.concatenate([Rotation.from_matrix(transform[:3, :3]).as_rotvec(), transform[:3, 3]])
+
+
+def covariance(information: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The inverse of an information matrix, regularised where a fit left a direction unmeasured."""
+    values, vectors = np.linalg.eigh(0.5 * (information + information.T))
+    values = np.maximum(values, 1e-9)
+    return (vectors / values) @ vectors.T
+
+
+class Chain:
+    """The odometry's node poses and each edge's covariance, propagated: the uncertainty between nodes."""
+
+    def __init__(self, poses: NDArray[np.float64], edge_information: list[NDArray[np.float64]]) -> None:
+        self.poses = np.asarray(poses, dtype=np.float64)
+        steps = [
+            adjoint(self.poses[k]) @ covariance(info) @ adjoint(self.poses[k]).T
+            for k, info in enumerate(edge_information)
+        ]
+        self._prefix = np.concatenate([np.zeros((1, 6, 6)), np.cumsum(np.array(steps).reshape(-1, 6, 6), 0)])
+
+    def world_covariance(self, first: int, second: int) -> NDArray[np.float64]:
+        """The world-frame covariance the edges from node ``min`` to node ``max`` add to a later node."""
+        low, high = sorted((first, second))
+        return self._prefix[high] - self._prefix[low]
+
+    def between(self, first: tuple[int, int], second: tuple[int, int]) -> NDArray[np.float64]:
+        """The world-frame covariance of the edges in one node interval and not the other (two loops'
+        corrections share the drift of the edges both span, which cancels)."""
+        a, b = sorted(first), sorted(second)
+        low, high = min(a[0], b[0]), max(a[1], b[1])
+        inner_low, inner_high = max(a[0], b[0]), min(a[1], b[1])
+        if inner_low >= inner_high:  # disjoint: both whole
+            return self.world_covariance(*a) + self.world_covariance(*b)
+        return self.world_covariance(low, inner_low) + self.world_covariance(inner_high, high)
+
+    def correction(self, source: int, target: int, measured: Transform) -> NDArray[np.float64]:
+        """What a loop ``T_target_source`` asks of the odometry, as a world-frame twist."""
+        return twist(self.poses[target] @ measured @ invert(self.poses[source]))
+
+
+def chi2_gate(confidence: float, dof: int) -> float:
+    """The chi-square value a squared Mahalanobis distance on ``dof`` dimensions stays under with
+    probability ``confidence``."""
+    return float(chi2.ppf(confidence, dof))
+
+
+def mahalanobis2(residual: NDArray[np.float64], cov: NDArray[np.float64]) -> float:
+    """``r^T cov^-1 r``."""
+    return float(residual @ np.linalg.solve(cov, residual))
 
 
 @dataclass(frozen=True)
 class LoopCandidate:
     """Node ``source`` (the later visit) against node ``target`` (the earlier one); ``prior`` is the
-    odometry's ``T_target_source``, ``path_m`` the distance driven between them, ``frames`` the
-    registrations between them, ``turned_deg`` the angle the sensor turned between them (each
-    registration's rotation, summed)."""
+    odometry's ``T_target_source``, ``path_m`` the distance driven between them, ``distance_m`` the
+    odometry's distance between them, ``sigma_m`` the odometry's position uncertainty there (the square
+    root of its largest eigenvalue), ``passage`` the revisit passage it was attempted on (the loops of
+    one passage see the same surfaces: their errors are alike)."""
 
     source: int
     target: int
     prior: Transform
     path_m: float
     distance_m: float
+    sigma_m: float = 0.0
     frames: int = 0
-    turned_deg: float = 0.0
+    passage: int = 0
 
 
-def find_candidates(
-    nodes: list[Node],
-    drift: DriftModel | None = None,
-    revisit_radius_m: float = REVISIT_RADIUS_M,
-    min_loop_path_m: float = MIN_LOOP_PATH_M,
-    attempt_spacing_m: float = ATTEMPT_SPACING_M,
-    max_passage_attempts: int = MAX_PASSAGE_ATTEMPTS,
-) -> list[LoopCandidate]:
-    """The candidates in the order of the later visit (see the module doc)."""
-    drift = drift or DriftModel()
+def find_candidates(nodes: list[Node], chain: Chain, settings: LoopSettings) -> list[LoopCandidate]:
+    """Per later node, the earlier node (at least ``min_loop_path_m`` before) most likely to be the
+    same place, where the chi-square gate allows a revisit; then at most one attempt every
+    ``attempt_spacing_m`` of a revisit passage (and about ``passage_attempts`` a passage), the nodes
+    closest to the earlier visit first: a few loops pin a passage, and each costs a registration."""
     if len(nodes) < 2:
         return []
     positions = np.stack([node.pose[:3, 3] for node in nodes])
     path = np.array([node.path_m for node in nodes])
-    positions_in_run = np.array([node.position for node in nodes])
+    gate = chi2_gate(settings.candidate_confidence, 3)
     nearest: dict[int, LoopCandidate] = {}
-    for j, node in enumerate(nodes):
-        earlier = np.flatnonzero(path <= node.path_m - min_loop_path_m)
+    for j in range(len(nodes)):
+        earlier = np.flatnonzero(path <= path[j] - settings.min_loop_path_m)
         if len(earlier) == 0:
             continue
-        distances = np.linalg.norm(positions[earlier] - positions[j], axis=1)
-        best = int(np.argmin(distances))
-        i = int(earlier[best])
-        travelled = float(node.path_m - path[i])
-        frames = int(node.position - positions_in_run[i])
-        if distances[best] <= revisit_radius_m + drift.translation_bound(travelled, frames):
-            prior = invert(nodes[i].pose) @ node.pose
-            turned = node.turned_deg - nodes[i].turned_deg
-            nearest[j] = LoopCandidate(j, i, prior, travelled, float(distances[best]), frames, turned)
+        best: tuple[float, int, float] | None = None
+        for i in earlier[np.argsort(np.linalg.norm(positions[earlier] - positions[j], axis=1))[:8]]:
+            score, sigma = revisit_chi2(chain, int(i), j, settings.revisit_radius_m)
+            if score <= gate and (best is None or score < best[0]):
+                best = (score, int(i), sigma)
+        if best is not None:
+            _, i, sigma = best
+            prior = invert(nodes[i].pose) @ nodes[j].pose
+            distance = float(np.linalg.norm(positions[j] - positions[i]))
+            frames = nodes[j].position - nodes[i].position
+            nearest[j] = LoopCandidate(j, i, prior, float(path[j] - path[i]), distance, sigma, frames)
     chosen: list[LoopCandidate] = []
-    for passage in _passages(sorted(nearest)):
+    for number, passage in enumerate(_passages(sorted(nearest))):
         picked: list[float] = []
         length = float(path[passage[-1]] - path[passage[0]])
-        spacing = max(attempt_spacing_m, length / max_passage_attempts)
+        spacing = max(settings.attempt_spacing_m, length / settings.passage_attempts)
         for j in sorted(passage, key=lambda k: nearest[k].distance_m):
             if all(abs(path[j] - other) >= spacing for other in picked):
                 picked.append(float(path[j]))
-                chosen.append(nearest[j])
+                chosen.append(dataclasses.replace(nearest[j], passage=number))
     return sorted(chosen, key=lambda candidate: candidate.source)
+
+
+def revisit_chi2(chain: Chain, earlier: int, later: int, radius_m: float) -> tuple[float, float]:
+    """How unlikely it is that node ``later`` truly lies within ``radius_m`` of node ``earlier``: the
+    squared Mahalanobis distance, under the odometry's position uncertainty between them, of the part
+    of their offset beyond the radius; and that uncertainty's largest standard deviation (m)."""
+    point = chain.poses[later][:3, 3]
+    skew = np.array([[0.0, -point[2], point[1]], [point[2], 0.0, -point[0]], [-point[1], point[0], 0.0]])
+    jacobian = np.hstack([-skew, np.eye(3)])  # d(exp(xi) p)/d xi: a rotation moves a far point more
+    spread = jacobian @ chain.world_covariance(earlier, later) @ jacobian.T
+    offset = point - chain.poses[earlier][:3, 3]
+    distance = float(np.linalg.norm(offset))
+    beyond = offset * max(0.0, 1.0 - radius_m / distance) if distance > 0 else offset
+    score = mahalanobis2(beyond, spread + POSITION_FLOOR_M**2 * np.eye(3))
+    return score, math.sqrt(max(float(np.linalg.eigvalsh(spread)[-1]), 0.0))
+
+
+POSITION_FLOOR_M = 0.01
+"""A floor on the position uncertainty (numerical: the first nodes' covariance is near zero)."""
 
 
 def _passages(indices: list[int]) -> list[list[int]]:

@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 
 from vcr_odom.data.base import Points
 from vcr_odom.geometry import Transform, invert, rotation_angle
-from vcr_odom.loops.ground import ground_normal
+from vcr_odom.loops.gravity import ground_normal
 from vcr_odom.odometry.polish_voxel import reach_voxel
 from vcr_odom.registration.open3d_icp import prepare_cloud
 
@@ -78,10 +78,8 @@ def normal_cloud(points: NDArray[np.float32], voxel: float) -> o3d.geometry.Poin
 
 class NodeNormals:
     """Each node's cloud with its normals (:func:`normal_cloud`), estimated once for the loop phase:
-    the verification, the heading support and the walls' up all read the same node's normals, and on
-    drive 802 estimating them up to three times was 10-15 % of the loop phase on one thread. Held for
-    the loop phase only (float64, so every fit is the one a fresh estimate gives): twice the memory of
-    the nodes' float32 clouds."""
+    the odometry edges' information, the verification and the walls' up all read them. Held for the
+    loop phase only: twice the memory of the nodes' float32 clouds."""
 
     def __init__(self, nodes: Sequence[Node]) -> None:
         self.nodes = nodes
@@ -106,8 +104,8 @@ class NodeNormals:
 
 def node_cloud_voxel(points: Points) -> float:
     """:data:`CLOUD_VOXEL_M` for a street scan; for a scan of rooms the finer grid the polish takes
-    there (:func:`~vcr_odom.odometry.polish_voxel.reach_voxel`): on 1 m voxels of a corridor, with
-    normals from 2.5 m around, loop fits turned by 1-6 deg (:data:`~vcr_odom.loops.verify.MIN_DISTANCE_SCALE`)."""
+    there (:func:`~vcr_odom.odometry.polish_voxel.reach_voxel`): 1 m voxels, with normals from 2.5 m
+    around, round off a corridor's walls."""
     xyz = np.asarray(points, dtype=np.float64)[:, :3]
     xyz = xyz[np.isfinite(xyz).all(axis=1)]
     return CLOUD_VOXEL_M if len(xyz) == 0 else reach_voxel(xyz, CLOUD_VOXEL_M)
@@ -186,14 +184,6 @@ class NodeRecorder:
         )
 
 
-SUBMAP_HALF_PATH_M = 30.0
-SUBMAP_RADIUS_M = 20.0
-NARROW_FIELD_COVERAGE = 0.5
-"""A node whose cloud covers less than this fraction of the azimuth (10 deg sectors) sees too little of
-a revisit from another heading: it is registered as a submap, its own cloud and the nodes' within
-:data:`SUBMAP_HALF_PATH_M` of path either side (none nearer to the other visit: :func:`submap_members`)
-placed by the odometry (so it carries the odometry's drift over that much path), cropped to
-:data:`SUBMAP_RADIUS_M` around the node (the place itself, not the two streets running away from it)."""
 AZIMUTH_SECTORS = 36
 
 
@@ -207,21 +197,11 @@ def azimuth_coverage(cloud: NDArray) -> float:
     return len(np.unique(sectors)) / AZIMUTH_SECTORS
 
 
-def mostly_narrow(nodes: Sequence[Node]) -> bool:
-    """Whether the nodes' median :func:`azimuth_coverage` is under :data:`NARROW_FIELD_COVERAGE`: a
-    solid-state field of view, whose scans see every surface from one side."""
-    coverage = [azimuth_coverage(node.cloud) for node in nodes if len(node.cloud)]
-    return bool(coverage) and float(np.median(coverage)) < NARROW_FIELD_COVERAGE
-
-
-def submap_members(
-    nodes: list[Node], index: int, other: int | None = None, half_path_m: float = SUBMAP_HALF_PATH_M
-) -> tuple[int, ...]:
+def submap_members(nodes: list[Node], index: int, other: int | None, half_path_m: float) -> tuple[int, ...]:
     """The nodes making node ``index``'s submap: those within ``half_path_m`` of path either side and,
     against the other visit's node ``other``, only those nearer along the path to this visit. Two
     visits less than twice ``half_path_m`` apart would otherwise share the nodes between them, placed by
-    the same odometry: the two submaps then fit each other wherever the odometry put them (a
-    walk whose odometry had collapsed closed three such loops 12-30 m off)."""
+    the same odometry: the two submaps then fit each other wherever the odometry put them."""
     centre = nodes[index].path_m
     apart = None if other is None else nodes[other].path_m
     return tuple(
@@ -233,27 +213,17 @@ def submap_members(
 
 
 def submap_cloud(
-    nodes: list[Node],
-    index: int,
-    members: tuple[int, ...] | None = None,
-    radius_m: float = SUBMAP_RADIUS_M,
+    nodes: list[Node], index: int, members: tuple[int, ...], radius_m: float
 ) -> NDArray[np.float32]:
-    """The ``members``' clouds (default :func:`submap_members`) in node ``index``'s frame, on its grid,
-    within ``radius_m`` of it."""
+    """The ``members``' clouds in node ``index``'s frame, on its grid, within ``radius_m`` of it: a
+    narrow field of view's picture of a place, placed by the odometry (so it carries the odometry's
+    drift over that path), cropped to the place itself, not the streets running away from it."""
     centre = nodes[index]
     to_centre = invert(centre.pose)
     parts = []
-    for k in submap_members(nodes, index) if members is None else members:
+    for k in members:
         relative = to_centre @ nodes[k].pose
         placed = nodes[k].cloud.astype(np.float64) @ relative[:3, :3].T + relative[:3, 3]
         parts.append(placed[np.linalg.norm(placed[:, :2], axis=1) <= radius_m])
     merged = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.concatenate(parts)))
     return np.asarray(merged.voxel_down_sample(centre.cloud_voxel).points, dtype=np.float32)
-
-
-def turned_along(nodes: list[Node], members: tuple[int, ...]) -> float:
-    """The angle the odometry turned from the first to the last of ``members`` (degrees, each
-    registration's rotation summed): how far a submap of them may be bent by a heading drift that
-    grows with each turn (:attr:`~vcr_odom.loops.drift.DriftModel.rotation_per_turned`)."""
-    turned = [nodes[k].turned_deg for k in members]
-    return max(turned) - min(turned)

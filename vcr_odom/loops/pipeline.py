@@ -23,27 +23,17 @@ from typing import Any
 
 import numpy as np
 import open3d as o3d
-from pydantic import Field, model_validator
+from pydantic import model_validator
 
 from vcr_odom.data.base import LidarSequence, Points
 from vcr_odom.geometry import Transform, lidar_to_camera_poses
 from vcr_odom.io import write_kitti_poses, write_tum_trajectory
-from vcr_odom.loops.candidates import (
-    ATTEMPT_SPACING_M,
-    MAX_PASSAGE_ATTEMPTS,
-    MIN_LOOP_PATH_M,
-    REVISIT_RADIUS_M,
-    find_candidates,
-)
-from vcr_odom.loops.drift import DriftModel
-from vcr_odom.loops.graph import LoopEdge, correct_frames, factor_summary, optimise
-from vcr_odom.loops.implied_starts import reject_loops_ambiguous_from_implied_starts
-from vcr_odom.loops.nodes import NODE_SPACING_DEG, NODE_SPACING_M, Node, NodeNormals, NodeRecorder
-from vcr_odom.loops.odometry_doubts import OdometryDoubts, fit_sigma_factors
-from vcr_odom.loops.outranked import reject_weak_loops_corroborated_ones_contradict
-from vcr_odom.loops.same_place import reject_disagreeing_submap_fits
-from vcr_odom.loops.up_priors import ATTITUDE_SIGMA_DEG
-from vcr_odom.loops.verify import CHECKS, LoopDecision, LoopVerifier
+from vcr_odom.loops.candidates import Chain, find_candidates
+from vcr_odom.loops.graph import LoopEdge, correct_frames, optimise, residual_chi2, select_loops
+from vcr_odom.loops.gravity import up_priors
+from vcr_odom.loops.nodes import Node, NodeNormals, NodeRecorder
+from vcr_odom.loops.settings import LoopSettings
+from vcr_odom.loops.verify import CHECKS, LoopDecision, LoopVerifier, odometry_information
 from vcr_odom.mapping import VoxelMap
 from vcr_odom.metrics import EvaluationReport, evaluate
 from vcr_odom.odometry.chain import Odometry
@@ -62,53 +52,9 @@ from vcr_odom.results import (
     remove_result_folder,
     write_json,
 )
-from vcr_odom.settings import Settings
-
-MAP_SCAN_SPACING_M = 6.0
-"""Path between the scans map.ply is built from: every other node at the default spacing."""
 
 
-class LoopOptions(Settings):
-    """The loop closure's settings (``map``'s options beyond ``run``'s)."""
-
-    node_spacing: float = Field(default=NODE_SPACING_M, gt=0, description="Metres between graph nodes.")
-    node_angle: float = Field(default=NODE_SPACING_DEG, gt=0, description="A turn that makes a node (deg).")
-    revisit_radius: float = Field(default=REVISIT_RADIUS_M, gt=0)
-    min_loop_path: float = Field(default=MIN_LOOP_PATH_M, gt=0)
-    attempt_spacing: float = Field(default=ATTEMPT_SPACING_M, ge=0)
-    passage_attempts: int = Field(
-        default=MAX_PASSAGE_ATTEMPTS,
-        ge=1,
-        description="At most about this many loop attempts along one revisit passage: a passage longer "
-        "than this many times attempt_spacing is attempted every 1/passage_attempts of its length.",
-    )
-    max_drift: float = Field(
-        default=DriftModel.translation_rate * 100,
-        gt=0,
-        le=50,
-        description="How far the odometry may drift between two visits, in % of the path between them "
-        f"(each frame counting as at least {DriftModel.path_per_frame_floor_m * 100:.0f} cm of it; plus "
-        f"{DriftModel.translation_floor_m:g} m): a loop asking for more is rejected, and so is a "
-        "look-alike place a block away.",
-    )
-    max_heading_drift: float = Field(
-        default=DriftModel.rotation_deg_per_m * 100,
-        gt=0,
-        le=100,
-        description="How far the odometry's heading may drift between two visits, in deg per 100 m of "
-        f"path (plus {DriftModel.rotation_floor_deg:g} deg and {DriftModel.rotation_per_turned * 100:g} % "
-        f"of the angle turned between them, at most {DriftModel.rotation_cap_deg:g} deg).",
-    )
-    loops: bool = Field(default=True, description="False: the odometry and its map only (a baseline).")
-    ground_up: bool = Field(
-        default=True,
-        description="Hold each node's tilt to the up measured in its cloud (its walls', else its "
-        "ground's) where the odometry's tilt drifted from it (False: loops alone).",
-    )
-    map_voxel: float = Field(default=0.5, ge=0.05)
-
-
-class MapSettings(RunSettings, LoopOptions):
+class MapSettings(RunSettings, LoopSettings):
     """Everything ``vcr-odom map`` is told: ``run``'s options (without ``--save-map``: the map is
     always written into the folder) and the loop closure's."""
 
@@ -185,7 +131,7 @@ def map_sequence(settings: MapSettings, progress: ProgressFactory | None = None)
         network,
         indices,
         folder,
-        LoopOptions(**{k: getattr(settings, k) for k in LoopOptions.model_fields}),
+        LoopSettings(**{k: getattr(settings, k) for k in LoopSettings.model_fields}),
         progress=progress,
         on_saved=lambda: point_latest_at(settings.results_dir, folder),
     )
@@ -197,7 +143,7 @@ def map_and_save(
     network: VcrRegistrar,
     indices: Sequence[int],
     folder: Path,
-    options: LoopOptions,
+    options: LoopSettings,
     *,
     progress: ProgressFactory | None = None,
     on_saved: Callable[[], Any] | None = None,
@@ -205,7 +151,7 @@ def map_and_save(
     """Run the odometry with a node recorder, close loops, optimise and publish ``folder``'s unit
     (see the module doc); ``folder`` is None in the outcome where nothing was kept."""
     spec = odometry.name
-    recorder = NodeRecorder(options.node_spacing, options.node_angle)
+    recorder = NodeRecorder(options.node_spacing_m, options.node_angle_deg)
     checkpoints = Checkpoints(folder, sequence, len(indices), method=f"{spec} (odometry)", on_saved=on_saved)
     phase = Phases(progress)
     kept: Path | None = folder
@@ -229,10 +175,9 @@ def map_and_save(
                 kept = None
             return MapOutcome(kept, sequence, run, run.poses, [], None, None, phase.seconds)
         nodes = recorder.finish()
-        doubts = OdometryDoubts.of_run(run.frame_indices, run.per_frame_info)
-        closed = close_loops(options, network, nodes, run.poses, phase, doubts)
+        closed = close_loops(options, network, nodes, run.poses, phase)
         decisions, poses, up = closed.decisions, closed.poses, closed.ground_up
-        voxel_map = _map_from_nodes(sequence, nodes, poses, options.map_voxel, phase)
+        voxel_map = _map_from_nodes(sequence, nodes, poses, options, phase)
     except BaseException as error:
         checkpoints.save(f"{interruption_reason(error)} (after {checkpoints.frames_done} odometry frames)")
         if not holds_trajectory(folder):
@@ -261,9 +206,7 @@ def map_and_save(
                 "loops": _loop_summary(decisions)
                 | {
                     "ground_up": up,
-                    "odometry_sigma_scale": closed.odometry_scale,
-                    "odometry_heading_sigmas": closed.heading_support,
-                    "odometry_fit_sigmas": closed.fit_doubts,
+                    "odometry_covariance_scale": round(closed.odometry_scale, 4),
                     "node_voxel_m": recorder.cloud_voxel,
                 },
                 "seconds": phase.seconds,
@@ -321,119 +264,87 @@ def _accepted(decisions: list[LoopDecision]) -> list[LoopDecision]:
 
 @dataclass
 class ClosedLoops:
-    """What the loop phase made of an odometry: every candidate's decision (a loop the graph dropped
-    is no longer accepted), every frame's optimised pose, and what the graph made of the ground's up."""
+    """What the loop phase made of an odometry: every candidate's decision, every frame's optimised
+    pose, and what the graph made of the measured up."""
 
     decisions: list[LoopDecision]
     poses: np.ndarray
     ground_up: dict[str, Any]
-    odometry_scale: dict[str, Any] | None = None
-    """How the loops' cycles scaled the graph's odometry sigmas (None without loops)."""
-    heading_support: dict[str, Any] | None = None
-    """How far the graph raised its odometry edges' heading sigmas where the scans held the heading
-    weakly (None without loops)."""
-    fit_doubts: dict[str, Any] | None = None
-    """How far the graph raised its odometry edges' sigmas where the odometry's frames fitted poorly
-    (None without loops)."""
+    odometry_scale: float = 1.0
+    """The factor the loops measured on the odometry's covariance (:func:`~vcr_odom.loops.graph.odometry_scale`)."""
 
 
 def close_loops(
-    settings: LoopOptions,
+    settings: LoopSettings,
     network: VcrRegistrar,
     nodes: list[Node],
     odometry_poses: np.ndarray,
     phase: Phases | None = None,
-    doubts: OdometryDoubts | None = None,
 ) -> ClosedLoops:
-    """Candidates, verification and the graph on nodes recorded along ``odometry_poses`` (every frame's,
-    as the :class:`NodeRecorder` saw them): ``map``'s loop phase, and a benchmark's on a recorded or
-    drifted odometry. ``doubts``: what the odometry said of its frames (:mod:`~vcr_odom.loops.odometry_doubts`;
-    none for a benchmark's drift)."""
+    """Candidates, verification, consistency and the graph on nodes recorded along ``odometry_poses``
+    (every frame's, as the :class:`NodeRecorder` saw them): ``map``'s loop phase, and a benchmark's on
+    a recorded or drifted odometry."""
     phase = phase or Phases(None)
-    doubts = doubts or OdometryDoubts()
-    drift = DriftModel(
-        translation_rate=settings.max_drift / 100, rotation_deg_per_m=settings.max_heading_drift / 100
-    )
+    if not settings.loops:  # the baseline: the odometry as it is
+        phase.seconds |= {"loops": 0.0, "graph": 0.0}
+        return ClosedLoops([], np.array(odometry_poses, copy=True), {"used": False})
     started = time.perf_counter()
+    normals = NodeNormals(nodes)  # read by the odometry edges, the verification and the walls
+    node_poses = np.stack([node.pose for node in nodes])
+    edge_information = odometry_information(nodes, normals, settings)
+    chain = Chain(node_poses, edge_information)
     decisions: list[LoopDecision] = []
-    normals = NodeNormals(nodes)  # the verification's and the graph's, estimated once per node
-    if settings.loops:
-        candidates = find_candidates(
-            nodes,
-            drift,
-            settings.revisit_radius,
-            settings.min_loop_path,
-            settings.attempt_spacing,
-            settings.passage_attempts,
-        )
-        verifier = LoopVerifier(network, drift, doubts.flagged_frames, normals)
-        with phase("loop candidates", len(candidates)) as advance:
-            for candidate in candidates:
-                decisions.append(verifier.verify(candidate, nodes))
-                advance(candidate.source, candidate.prior)
-        reject_disagreeing_submap_fits(decisions, nodes)
-        reject_loops_ambiguous_from_implied_starts(decisions, nodes, normals)
-        reject_weak_loops_corroborated_ones_contradict(decisions, nodes)
+    candidates = find_candidates(nodes, chain, settings)
+    verifier = LoopVerifier(network, chain, settings, normals)
+    with phase("loop candidates", len(candidates)) as advance:
+        for candidate in candidates:
+            decisions.append(verifier.verify(candidate, nodes))
+            advance(candidate.source, candidate.prior)
+    measured = _accepted(decisions)
+    edges = [LoopEdge(d.candidate.source, d.candidate.target, d.measured, d.information) for d in measured]
+    selection = select_loops(edges, chain, settings)
+    for decision, verdict in zip(measured, selection.verdicts, strict=True):
+        if verdict:
+            decision.reject(*verdict)
     phase.seconds["loops"] = time.perf_counter() - started
     started = time.perf_counter()
-    edges = [
-        LoopEdge(
-            d.candidate.source, d.candidate.target, d.measured, d.information, corroborated=d.corroborated
-        )
-        for d in _accepted(decisions)
-    ]
-    attitude_deg = ATTITUDE_SIGMA_DEG if settings.ground_up else 0.0
-    fit_factors = fit_sigma_factors(nodes, doubts.fits) if edges else None  # no loop: no graph to weigh
-    graph = optimise(nodes, edges, drift, attitude_deg, fit_factors, normals)
-    for k, (decision, kept, weight) in enumerate(
-        zip(_accepted(decisions), graph.kept, graph.weights, strict=True)
-    ):
-        decision.scores["graph_weight"] = round(weight, 4)
-        if not kept:
-            decision.reject("graph", dropped_reason(graph.cycle_outliers.get(k), weight, len(edges)))
-    before = np.stack([node.pose for node in nodes])
-    if any(graph.kept):
-        poses = correct_frames(odometry_poses, [n.position for n in nodes], before, graph.node_poses)
+    kept = [(edge, d.candidate.passage) for edge, d in zip(edges, measured, strict=True) if d.accepted]
+    kept_edges = _shared_by_passage(kept)
+    up = up_priors(nodes, normals, settings) if kept_edges else None
+    after = optimise(node_poses, edge_information, kept_edges, up, selection.odometry_scale)
+    for decision, edge in zip(_accepted(decisions), kept_edges, strict=True):
+        decision.extra["graph_chi2"] = round(residual_chi2(after, edge), 3)
+    if kept_edges:
+        poses = correct_frames(odometry_poses, [n.position for n in nodes], node_poses, after)
     else:
         poses = np.array(odometry_poses, copy=True)
     phase.seconds["graph"] = time.perf_counter() - started
-    up = {"used": False} if graph.up is None else graph.up.to_dict() | {"dropped": graph.up_dropped}
-    scale = None
-    if graph.odometry is not None:
-        scale = graph.odometry.to_dict() | {
-            "trusted_loops": graph.trusted,
-            "final_loop_share": graph.loop_share,
-        }
-    heading = None if graph.heading_factors is None else factor_summary(graph.heading_factors)
-    fits = None if graph.fit_factors is None else factor_summary(graph.fit_factors)
-    return ClosedLoops(decisions, poses, up, scale, heading, fits)
+    up_summary = {"used": False} if up is None else up.to_dict()
+    return ClosedLoops(decisions, poses, up_summary, selection.odometry_scale)
 
 
-def dropped_reason(cycle_outlier: tuple[int, int] | None, weight: float, loops: int) -> str:
-    """Why the graph dropped a loop (``loops.json``): its cycles with the loops near it, or its weight
-    after the robust rounds, against the odometry's sigmas and the ``loops - 1`` other loops (a lone
-    loop can only disagree with the odometry)."""
-    if cycle_outlier is not None:
-        misclosed, cycles = cycle_outlier
-        if cycles == 2:  # two loops that agree outvote it (:func:`~vcr_odom.loops.cycles.cycle_outliers`)
-            return "dropped: its cycles with the two loops near it do not close, while theirs does"
-        return f"dropped: {misclosed} of its {cycles} cycles with the loops near it do not close"
-    others = loops - 1
-    against = "the odometry" if others == 0 else f"the odometry and the {others} other loop(s)"
-    return f"dropped: disagrees with {against} (graph weight {weight:.2f})"
+def _shared_by_passage(loops: list[tuple[LoopEdge, int]]) -> list[LoopEdge]:
+    """The loops with each one's information shared among the loops of its revisit passage: they
+    register the same surfaces a few metres apart, so their errors are alike and averaging them
+    removes none; together they count as one measurement of the passage."""
+    counts = Counter(passage for _, passage in loops)
+    return [
+        dataclasses.replace(edge, information=edge.information / counts[passage]) for edge, passage in loops
+    ]
 
 
 def _map_from_nodes(
-    sequence: LidarSequence, nodes: list[Node], poses: np.ndarray, voxel: float, phase: Phases
+    sequence: LidarSequence, nodes: list[Node], poses: np.ndarray, settings: LoopSettings, phase: Phases
 ) -> VoxelMap:
-    """The map from node scans at their optimised poses, one every :data:`MAP_SCAN_SPACING_M` of path
+    """The map from node scans at their optimised poses, one every ``map_scan_spacing_m`` of path
     (read again, in order: a recording streams). A place stays in a 60 m scan for many of them."""
     started = time.perf_counter()
+    voxel = settings.map_voxel_m
     voxel_map = VoxelMap(voxel_size=voxel)
     last_path = -np.inf
     with phase("map", len(nodes)) as advance:
         for node in nodes:
-            if node is nodes[-1] or node.path_m - last_path >= MAP_SCAN_SPACING_M:
+            if node is nodes[-1] or node.path_m - last_path >= settings.map_scan_spacing_m:
                 voxel_map.add(_thinned(sequence.frame(node.frame_index), voxel / 2), poses[node.position])
                 last_path = node.path_m
             advance(node.frame_index, poses[node.position])
@@ -476,16 +387,11 @@ def _loop_summary(decisions: list[LoopDecision]) -> dict[str, Any]:
     return {
         "candidates": len(decisions),
         "accepted": sum(d.accepted for d in decisions),
-        "beyond_drift_bound": beyond_drift_bound(decisions),
-        "network_input_kept_ground": sum(bool(d.scores.get("network_input_kept_ground")) for d in decisions),
+        "network_input_kept_ground": sum(
+            bool(d.scores and d.scores.network_input_kept_ground) for d in decisions
+        ),
         "by_outcome": {name: outcomes[name] for name in ("accepted", *CHECKS) if outcomes[name]},
     }
-
-
-def beyond_drift_bound(decisions: list[LoopDecision]) -> int:
-    """Candidates that fit (overlap and RMSE passed) but asked the odometry for more than its drift
-    bound: look-alike places, or an odometry that drifts more than the bound's options allow."""
-    return sum(d.check == "drift_bound" for d in decisions)
 
 
 def _peak_rss_bytes() -> int:

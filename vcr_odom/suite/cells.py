@@ -86,7 +86,7 @@ def record_failure(cell: Cell, suite_folder: Path, reason: str, details: str | N
 
 
 def _run(cell: Cell, folder: Path) -> None:
-    from vcr_odom.loops.spec import split_loops
+    from vcr_odom.evaluation.rows import split_loops
     from vcr_odom.odometry.factory import parse_method_spec
 
     base, mapped = split_loops(cell.method)

@@ -14,7 +14,7 @@ from pydantic import Field, field_validator, model_validator
 
 from vcr_odom.data.selection import FrameSelection
 from vcr_odom.errors import ConfigError
-from vcr_odom.loops.spec import canonical_row, parse_row_spec
+from vcr_odom.evaluation.rows import canonical_row, parse_row_spec
 from vcr_odom.odometry.chain import CONSULT_CHOICES
 from vcr_odom.settings import Settings
 

@@ -1,0 +1,91 @@
+"""Are the loop phase's information matrices calibrated? Not a test: run
+
+    .venv/bin/python benchmarks/loop_calibration.py REC/801.pkl REC/803.pkl ... [--set NAME=VALUE ...]
+
+on recordings of ``benchmarks/loop_replay.py record``. For every accepted loop, its error against the
+truth (a twist, open3d's order, in the target's frame) weighed by its own information (normalised
+estimation error squared, NEES); for every odometry edge, the same with its fit information. Calibrated
+informations give NEES that follow chi-square on 6 dof (median 5.35). The loops' absolute scale matters
+(it weighs them against the gravity priors and sets what the odometry check and the drift estimate
+allow); the odometry edges' is measured per run by the loops (``odometry_scale``), so their NEES says
+only how far that factor must go. The last line gives the ``loop_information_points`` that puts the
+pooled median of the loops' NEES at 5.35.
+"""
+
+from __future__ import annotations
+
+import argparse
+import pickle
+from pathlib import Path
+
+import numpy as np
+from loop_replay import loop_options_set  # beside this script
+
+from vcr_odom.data.selection import FrameSelection
+from vcr_odom.geometry import invert
+from vcr_odom.loops.candidates import twist
+from vcr_odom.loops.nodes import NodeNormals
+from vcr_odom.loops.pipeline import close_loops, loop_network
+from vcr_odom.loops.settings import LoopSettings
+from vcr_odom.loops.verify import odometry_information
+from vcr_odom.odometry.outputs import ground_truth_for
+
+CHI2_MEDIAN_6 = 5.348
+
+
+def nees(information: np.ndarray, measured: np.ndarray, true: np.ndarray) -> float:
+    """``e^T I e`` of a measured ``T_target_source`` against the true one, ``e`` the left error in the
+    target's frame (open3d's convention for fit information)."""
+    error = twist(true @ invert(measured))
+    return float(error @ information @ error)
+
+
+def calibrate(path: Path, settings: LoopSettings) -> tuple[list[float], list[float]]:
+    """The NEES of every accepted loop and of every odometry edge of one recording."""
+    with path.open("rb") as handle:
+        recording = pickle.load(handle)  # the caller's own recording (see loop_replay.py)
+    folder = Path(recording["sequence"])
+    selection = FrameSelection(data_root=folder.parent.parent, seq=folder.name, stride=recording["stride"])
+    gt = ground_truth_for(selection.open(), recording["frame_indices"])
+    if gt is None:
+        raise SystemExit(f"{path}: {folder} has no ground truth to score against")
+    nodes = recording["nodes"]
+    edges = [
+        nees(information, invert(a.pose) @ b.pose, invert(gt[a.position]) @ gt[b.position])
+        for a, b, information in zip(
+            nodes[:-1], nodes[1:], odometry_information(nodes, NodeNormals(nodes), settings), strict=True
+        )
+    ]
+    network = loop_network(*(recording["network"][k] for k in ("weights", "device", "vcr_points")))
+    closed = close_loops(settings, network, nodes, recording["poses"])
+    loops = [
+        nees(d.information, d.measured, invert(gt[nodes[d.candidate.target].position]) @ gt[nodes[d.candidate.source].position])
+        for d in closed.decisions
+        if d.accepted
+    ]
+    return loops, edges
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("recordings", type=Path, nargs="+")
+    parser.add_argument("--set", dest="options_set", action="append", default=[], metavar="NAME=VALUE")
+    args = parser.parse_args()
+    settings = LoopSettings(**loop_options_set(args.options_set, parser))
+    pooled: list[float] = []
+    for path in args.recordings:
+        loops, edges = calibrate(path, settings)
+        pooled += loops
+        loop_text = f"loops {len(loops)}, NEES median {np.median(loops):.2f}" if loops else "no loop"
+        print(f"{path.stem}: {loop_text}; odometry edges {len(edges)}, NEES median {np.median(edges):.3f}")
+    if pooled:
+        median = float(np.median(pooled))
+        suggested = settings.loop_information_points * CHI2_MEDIAN_6 / median
+        print(
+            f"pooled: {len(pooled)} loops, NEES median {median:.2f} (calibrated: {CHI2_MEDIAN_6}); "
+            f"loop_information_points {settings.loop_information_points:g} -> {suggested:.0f}"
+        )
+
+
+if __name__ == "__main__":
+    main()
