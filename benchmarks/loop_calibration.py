@@ -59,7 +59,11 @@ def calibrate(path: Path, settings: LoopSettings) -> tuple[list[float], list[flo
     network = loop_network(*(recording["network"][k] for k in ("weights", "device", "vcr_points")))
     closed = close_loops(settings, network, nodes, recording["poses"])
     loops = [
-        nees(d.information, d.measured, invert(gt[nodes[d.candidate.target].position]) @ gt[nodes[d.candidate.source].position])
+        nees(
+            d.information,
+            d.measured,
+            invert(gt[nodes[d.candidate.target].position]) @ gt[nodes[d.candidate.source].position],
+        )
         for d in closed.decisions
         if d.accepted
     ]

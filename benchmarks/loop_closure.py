@@ -39,7 +39,7 @@ from rich.table import Table
 from vcr_odom.data.selection import FrameSelection
 from vcr_odom.evaluation.revisits import true_revisits
 from vcr_odom.geometry import invert, motion_difference
-from vcr_odom.loops.pipeline import MapOutcome, MapSettings, map_sequence
+from vcr_odom.map_command import MapOutcome, MapSettings, map_sequence
 from vcr_odom.metrics.evo_errors import ate_rpe
 from vcr_odom.odometry.outputs import ground_truth_for
 from vcr_odom.odometry.run import RunSettings, run_sequence

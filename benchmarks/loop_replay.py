@@ -61,8 +61,9 @@ from vcr_odom.geometry import invert
 from vcr_odom.io import replacing
 from vcr_odom.loops import pipeline
 from vcr_odom.loops.nodes import NodeRecorder
-from vcr_odom.loops.pipeline import MapSettings, Phases, close_loops, loop_network, loops_json
+from vcr_odom.loops.pipeline import Phases, close_loops, loop_network, loops_json
 from vcr_odom.loops.settings import LoopSettings
+from vcr_odom.map_command import MapSettings
 from vcr_odom.metrics.evo_errors import ate_rpe
 from vcr_odom.odometry.loop import run_odometry
 from vcr_odom.odometry.outputs import ground_truth_for

@@ -25,8 +25,8 @@ from vcr_odom.cli.progress import (
 from vcr_odom.cli.run import reject_unused_options, why_unscored
 from vcr_odom.cli.tables import _f, ate_cell
 from vcr_odom.data.selection import FrameSelection
-from vcr_odom.loops.pipeline import MapOutcome, MapSettings, map_sequence
 from vcr_odom.loops.settings import LoopSettings
+from vcr_odom.map_command import MapOutcome, MapSettings, map_sequence
 from vcr_odom.odometry.polish import POLISHES
 from vcr_odom.registration import METHOD_NAMES
 

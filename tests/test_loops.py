@@ -371,12 +371,12 @@ def test_map_without_revisits_keeps_the_odometry_and_writes_every_file(
 def test_map_interrupted_after_the_odometry_keeps_the_odometry_marked_partial(
     small_synthetic_root: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    import vcr_odom.loops.pipeline as pipeline
+    import vcr_odom.map_command as map_command
 
     def ctrl_c(*_args: object) -> None:
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(pipeline, "_map_from_nodes", ctrl_c)
+    monkeypatch.setattr(map_command, "_map_from_nodes", ctrl_c)
     result = _map(small_synthetic_root, tmp_path)
     assert result.exit_code == 130, result.output
     (folder,) = [p for p in tmp_path.iterdir() if p.name.startswith("20")]
@@ -469,7 +469,8 @@ def test_the_loop_network_shares_the_odometrys_weights_with_its_own_passes(
     --save-map, which map would ignore, is refused by name."""
     from vcr_odom.data.selection import FrameSelection
     from vcr_odom.errors import ConfigError
-    from vcr_odom.loops.pipeline import MapSettings, loop_network
+    from vcr_odom.loops.pipeline import loop_network
+    from vcr_odom.map_command import MapSettings
     from vcr_odom.odometry.run import method_for
     from vcr_odom.registration import vcr as vcr_module
 
@@ -525,8 +526,8 @@ def test_map_takes_passage_attempts_from_its_option_and_refuses_zero(
 
 def test_metrics_count_candidates_by_the_check_they_failed() -> None:
     """metrics.json's by_outcome reads the decision's check, in the order the checks are tried."""
-    from vcr_odom.loops.pipeline import _loop_summary
     from vcr_odom.loops.verify import CHECKS, LoopDecision
+    from vcr_odom.map_command import _loop_summary
 
     assert CHECKS == ("points", "overlap", "fit_rmse", "odometry", "degenerate", "ambiguous", "inconsistent")
     candidate = LoopCandidate(1, 0, np.eye(4), 50.0, 0.0)

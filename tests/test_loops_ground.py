@@ -11,9 +11,10 @@ import pytest
 
 from vcr_odom.geometry import invert, make_transform, rotation_from_euler_zyx
 from vcr_odom.loops.graph import LoopEdge, optimise
-from vcr_odom.loops.gravity import UpPriors, ground_normal, up_priors
+from vcr_odom.loops.gravity import UpPriors, up_priors
 from vcr_odom.loops.nodes import Node, NodeNormals
 from vcr_odom.loops.settings import LoopSettings
+from vcr_odom.preprocess import ground_normal
 
 EXACT = np.diag([1e4] * 3 + [1e2] * 3)
 ODOMETRY = np.diag([math.radians(0.5) ** -2] * 3 + [0.1**-2] * 3)

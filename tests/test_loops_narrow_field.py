@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from vcr_odom.data import open_sequence
-from vcr_odom.geometry import invert, make_transform, rotation_angle, rotation_from_euler_zyx
+from vcr_odom.geometry import invert, make_transform, rotation_from_euler_zyx
 from vcr_odom.loops import verify
 from vcr_odom.loops.candidates import Chain, LoopCandidate
 from vcr_odom.loops.nodes import (

@@ -23,8 +23,9 @@ from vcr_odom.errors import ConfigError, MissingExtraError
 from vcr_odom.evaluation.pairs import PAIR_KINDS, PairProtocolResult, evaluate_pair_protocol, pair_sets
 from vcr_odom.evaluation.pairs_polish import PAIR_POLISHES
 from vcr_odom.evaluation.rows import canonical_row, split_loops
-from vcr_odom.loops.pipeline import loop_network, map_and_save
+from vcr_odom.loops.pipeline import loop_network
 from vcr_odom.loops.settings import LoopSettings
+from vcr_odom.map_command import map_and_save
 from vcr_odom.metrics import EvaluationReport
 from vcr_odom.model.weights import default_weights_path, read_weights
 from vcr_odom.odometry.chain import Consult, Odometry

@@ -20,14 +20,11 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
-import open3d as o3d
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from vcr_odom.data.base import Points
 from vcr_odom.geometry import Transform, invert
 from vcr_odom.loops.settings import LoopSettings
-from vcr_odom.preprocess import is_ground, least_squares_plane
 
 if TYPE_CHECKING:
     from vcr_odom.loops.nodes import Node, NodeNormals
@@ -110,47 +107,6 @@ def _pull(near: NDArray[np.float64]) -> NDArray[np.float64]:
     """``near`` counted as :data:`NEAR_WEIGHT` normals perpendicular to the up sought: it holds the
     tilt that walls facing one way leave free, and is nothing against walls facing two ways."""
     return NEAR_WEIGHT * (np.eye(3) - np.outer(near, near))
-
-
-GROUND_NEAR_M = (0.5, 20.0)
-"""Horizontal range of the points used: the ground is densest near the sensor."""
-GROUND_BAND_M = 0.6
-"""Height above the lowest points (their 5th percentile) kept as ground candidates."""
-GROUND_DISTANCE_M = 0.08
-GROUND_MAX_TILT_DEG = 30.0
-"""A plane tilted further from the scan's own z axis is a ramp, a wall or a wrong fit."""
-GROUND_SENSOR_ABOVE_M = 0.2
-"""The sensor is at least this far above the plane (a plane through it is a wrong fit)."""
-GROUND_MIN_POINTS = 30
-GROUND_INPUT_POINTS = 20_000
-"""A dense scan is taken every k-th point down to about this many first (the cost is in the scan's size)."""
-GROUND_SAMPLE_POINTS = 2000
-GROUND_ITERATIONS = 100
-
-
-def ground_normal(points: Points) -> NDArray[np.float64] | None:
-    """The ground plane's upward unit normal in the scan's frame, or None where no plausible ground
-    is seen (too few low points, a plane too steep or above the sensor)."""
-    xyz = np.asarray(points)[:, :3]
-    xyz = xyz[:: max(1, len(xyz) // GROUND_INPUT_POINTS)].astype(np.float64)
-    xyz = xyz[np.isfinite(xyz).all(axis=1)]
-    horizontal = np.linalg.norm(xyz[:, :2], axis=1)
-    xyz = xyz[(horizontal > GROUND_NEAR_M[0]) & (horizontal < GROUND_NEAR_M[1])]
-    if len(xyz) < GROUND_MIN_POINTS:
-        return None
-    low = xyz[xyz[:, 2] < np.percentile(xyz[:, 2], 5) + GROUND_BAND_M]
-    low = low[:: max(1, len(low) // GROUND_SAMPLE_POINTS)]
-    if len(low) < GROUND_MIN_POINTS:
-        return None
-    o3d.utility.random.seed(0)
-    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(low))
-    _, inliers = cloud.segment_plane(GROUND_DISTANCE_M, 3, GROUND_ITERATIONS, probability=1.0)
-    if len(inliers) < GROUND_MIN_POINTS:
-        return None
-    plane = least_squares_plane(low[inliers])  # RANSAC's own model rests on three points
-    if not is_ground(plane, GROUND_MAX_TILT_DEG) or plane[3] < GROUND_SENSOR_ABOVE_M:
-        return None
-    return plane[:3]
 
 
 UP_REFERENCE_M = 30.0

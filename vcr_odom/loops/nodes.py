@@ -21,8 +21,8 @@ from numpy.typing import NDArray
 
 from vcr_odom.data.base import Points
 from vcr_odom.geometry import Transform, invert, rotation_angle
-from vcr_odom.loops.gravity import ground_normal
 from vcr_odom.odometry.polish_voxel import reach_voxel
+from vcr_odom.preprocess import ground_normal
 from vcr_odom.registration.open3d_icp import prepare_cloud
 
 NODE_SPACING_M = 3.0

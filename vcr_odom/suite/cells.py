@@ -102,7 +102,7 @@ def _run(cell: Cell, folder: Path) -> None:
     if cell.consult is not None and polish != "none" and method in ("vcr", "fpfh"):
         options["consult"] = cell.consult
     if mapped:
-        from vcr_odom.loops.pipeline import MapSettings, map_sequence
+        from vcr_odom.map_command import MapSettings, map_sequence
 
         map_sequence(MapSettings(**options))
     else:
