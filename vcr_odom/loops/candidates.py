@@ -88,6 +88,24 @@ class Chain:
         """What a loop ``T_target_source`` asks of the odometry, as a world-frame twist."""
         return twist(self.poses[target] @ measured @ invert(self.poses[source]))
 
+    def loop_covariance(self, target: int, information: NDArray[np.float64]) -> NDArray[np.float64]:
+        """A loop's own covariance in the world frame (its information is in the target's frame)."""
+        lever = adjoint(self.poses[target])
+        return lever @ covariance(information) @ lever.T
+
+    def loop_chi2(
+        self,
+        source: int,
+        target: int,
+        measured: Transform,
+        information: NDArray[np.float64],
+        scale: float = 1.0,
+    ) -> float:
+        """The squared Mahalanobis distance of what a loop asks of the odometry, under the odometry's
+        covariance between its ends times ``scale`` and the loop's own."""
+        spread = scale * self.world_covariance(target, source) + self.loop_covariance(target, information)
+        return mahalanobis2(self.correction(source, target, measured), spread)
+
 
 def chi2_gate(confidence: float, dof: int) -> float:
     """The chi-square value a squared Mahalanobis distance on ``dof`` dimensions stays under with

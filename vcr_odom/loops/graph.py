@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation, Slerp
 
 from vcr_odom.geometry import Transform, invert
-from vcr_odom.loops.candidates import Chain, adjoint, chi2_gate, covariance, mahalanobis2, twist
+from vcr_odom.loops.candidates import Chain, adjoint, chi2_gate, mahalanobis2, twist
 from vcr_odom.loops.gravity import UpPriors
 from vcr_odom.loops.settings import LoopSettings
 
@@ -47,10 +47,7 @@ def consistent_loops(
     spans and the other does not, and both loops' own)."""
     count = len(loops)
     corrections = [chain.correction(loop.source, loop.target, loop.transform) for loop in loops]
-    own = [
-        adjoint(chain.poses[loop.target]) @ covariance(loop.information) @ adjoint(chain.poses[loop.target]).T
-        for loop in loops
-    ]
+    own = [chain.loop_covariance(loop.target, loop.information) for loop in loops]
     distances = np.zeros((count, count))
     for a in range(count):
         for b in range(a + 1, count):
@@ -139,14 +136,8 @@ ROUNDS = 5
 
 
 def loop_chi2(loop: LoopEdge, chain: Chain, scale: float = 1.0) -> float:
-    """The squared Mahalanobis distance of what ``loop`` asks of the odometry, under the odometry's
-    covariance between its ends times ``scale`` and the loop's own."""
-    lever = adjoint(chain.poses[loop.target])
-    spread = (
-        scale * chain.world_covariance(loop.target, loop.source)
-        + lever @ covariance(loop.information) @ lever.T
-    )
-    return mahalanobis2(chain.correction(loop.source, loop.target, loop.transform), spread)
+    """:meth:`Chain.loop_chi2` of a loop edge."""
+    return chain.loop_chi2(loop.source, loop.target, loop.transform, loop.information, scale)
 
 
 def odometry_scale(loops: Sequence[LoopEdge], chain: Chain) -> float:

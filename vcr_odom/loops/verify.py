@@ -43,7 +43,7 @@ from scipy.spatial import cKDTree
 
 from vcr_odom.errors import DataWarning
 from vcr_odom.geometry import Transform, make_transform, motion_difference, rotation_angle
-from vcr_odom.loops.candidates import Chain, LoopCandidate, adjoint, chi2_gate, covariance, mahalanobis2
+from vcr_odom.loops.candidates import Chain, LoopCandidate, chi2_gate
 from vcr_odom.loops.nodes import (
     CLOUD_VOXEL_M,
     Node,
@@ -244,7 +244,10 @@ class LoopVerifier:
         fits = {
             name: polish(source_cloud, target_cloud, start, scale, settings) for name, start in starts.items()
         }
-        chi2 = {name: self._odometry_chi2(candidate, fit) for name, fit in fits.items()}
+        chi2 = {
+            name: self.chain.loop_chi2(candidate.source, candidate.target, fit.transform, fit.information)
+            for name, fit in fits.items()
+        }
         gate = chi2_gate(settings.odometry_confidence, 6)
         best = max(fits, key=lambda name: (chi2[name] <= gate, fits[name].fitness))
         fit, other = fits[best], fits["odometry" if best == "network" else "network"]
@@ -297,16 +300,6 @@ class LoopVerifier:
         else:
             decision.accepted, decision.reason = True, "accepted"
         return decision
-
-    def _odometry_chi2(self, candidate: LoopCandidate, fit: Fit) -> float:
-        """The squared Mahalanobis distance of the loop's correction under the odometry's uncertainty
-        between the two nodes and the fit's own."""
-        chain = self.chain
-        correction = chain.correction(candidate.source, candidate.target, fit.transform)
-        lever = chain.poses[candidate.target]
-        spread = chain.world_covariance(candidate.target, candidate.source)
-        spread = spread + adjoint(lever) @ covariance(fit.information) @ adjoint(lever).T
-        return mahalanobis2(correction, spread)
 
     def _network_points(self, cloud: NDArray[np.float32]) -> tuple[NDArray[np.float32], bool]:
         """The network's input from a node's cloud or submap, and whether pre-processing had to keep
