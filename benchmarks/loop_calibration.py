@@ -19,7 +19,7 @@ import pickle
 from pathlib import Path
 
 import numpy as np
-from loop_replay import loop_options_set  # beside this script
+from loop_replay import add_set_option, loop_options_set  # beside this script
 
 from vcr_odom.data.selection import FrameSelection
 from vcr_odom.geometry import invert
@@ -73,7 +73,7 @@ def calibrate(path: Path, settings: LoopSettings) -> tuple[list[float], list[flo
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("recordings", type=Path, nargs="+")
-    parser.add_argument("--set", dest="options_set", action="append", default=[], metavar="NAME=VALUE")
+    add_set_option(parser)
     args = parser.parse_args()
     settings = LoopSettings(**loop_options_set(args.options_set, parser))
     pooled: list[float] = []

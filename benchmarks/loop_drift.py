@@ -56,7 +56,7 @@ from vcr_odom.registration.vcr import VcrRegistrar
 
 sys.path.insert(0, str(Path(__file__).parent))
 from loop_closure import FALSE_DEG, FALSE_M, revisit_passages
-from loop_replay import loop_options_set
+from loop_replay import add_set_option, loop_options_set
 
 
 def drifted(truth: np.ndarray, scale: float, yaw_deg_per_m: float, pitch_deg_per_m: float) -> np.ndarray:
@@ -153,15 +153,7 @@ def main() -> None:
     parser.add_argument("--scale", type=float, action="append", help="translation scale error (0.02 = 2 %%)")
     parser.add_argument("--yaw", type=float, action="append", help="heading drift, deg per metre")
     parser.add_argument("--pitch", type=float, action="append", help="pitch drift, deg per metre")
-    parser.add_argument(
-        "--set",
-        dest="options_set",
-        action="append",
-        default=[],
-        metavar="NAME=VALUE",
-        help="a loop setting for every drive (a LoopSettings field, e.g. odometry_confidence=0.9999); "
-        "repeatable",
-    )
+    add_set_option(parser)
     parser.add_argument("--json", type=Path)
     args = parser.parse_args()
     scales, yaws = args.scale or [0.0], args.yaw or [0.0]

@@ -34,7 +34,7 @@ from vcr_odom.loops.settings import LoopSettings
 from vcr_odom.registration.vcr import VcrRegistrar
 
 sys.path.insert(0, str(Path(__file__).parent))
-from loop_replay import loop_options_set
+from loop_replay import add_set_option, loop_options_set
 
 DRIFT = make_transform(rotation_from_euler_zyx(math.radians(4.0), 0.0, 0.0), [1.5, -1.0, 0.2])
 
@@ -105,14 +105,7 @@ def main() -> None:
     parser.add_argument("--seq", action="append", required=True)
     parser.add_argument("--node-voxel", type=float, default=None)
     parser.add_argument("--path", type=float, default=100.0, help="metres driven between the two visits")
-    parser.add_argument(
-        "--set",
-        dest="options_set",
-        action="append",
-        default=[],
-        metavar="NAME=VALUE",
-        help="a loop setting (a LoopSettings field); repeatable",
-    )
+    add_set_option(parser)
     args = parser.parse_args()
     if not args.path > 0:
         parser.error(f"--path {args.path}: expected a path above 0 m")

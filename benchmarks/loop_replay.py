@@ -275,6 +275,18 @@ def right_loop_errors(rows: list[dict[str, Any]]) -> dict[str, tuple[int, float,
     return pooled
 
 
+def add_set_option(parser: argparse.ArgumentParser, what: str = "a loop setting") -> None:
+    """``--set NAME=VALUE`` (repeatable): a field of ``LoopSettings``, checked by :func:`loop_options_set`."""
+    parser.add_argument(
+        "--set",
+        dest="options_set",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help=f"{what} (a LoopSettings field, e.g. passage_attempts=1000); repeatable",
+    )
+
+
 def loop_options_set(items: list[str], parser: argparse.ArgumentParser) -> dict[str, str]:
     """``--set`` items as {name: value}, each checked against ``LoopSettings`` now, not after the first
     recording has replayed."""
@@ -319,14 +331,7 @@ def main() -> None:
     again = commands.add_parser("replay", help="the loop phase of this checkout on recordings")
     again.add_argument("recordings", type=Path, nargs="+")
     again.add_argument("--json", type=Path)
-    again.add_argument(
-        "--set",
-        dest="options_set",
-        action="append",
-        default=[],
-        metavar="NAME=VALUE",
-        help="replace a recorded loop option (a LoopSettings field, e.g. passage_attempts=1000); repeatable",
-    )
+    add_set_option(again, "replace a recorded loop option")
     again.add_argument(
         "--candidates",
         type=Path,
