@@ -294,7 +294,7 @@ class LoopVerifier:
             decision.reject(
                 "ambiguous",
                 f"rejected: ambiguous: the network's start and the odometry's end {apart_m:.1f} m / "
-                f"{apart_deg:.0f} deg apart, the {best}'s overlapping more ({fit.fitness:.2f} against "
+                f"{apart_deg:.0f} deg apart; the {best}'s fit kept (overlap {fit.fitness:.2f}, the other "
                 f"{other.fitness:.2f})",
             )
         else:
