@@ -172,6 +172,12 @@ def map_command(ctx: click.Context, selection: FrameSelection, **options: object
             "look-alike places, or an odometry that drifts more than its scans and the other loops say "
             "(loops.json: odometry)."
         )
+    inconsistent = sum(d.check == "inconsistent" for d in outcome.decisions)
+    if inconsistent:
+        console.print(
+            f"{inconsistent} loop(s) passed every check of their own but close no cycle with the loops "
+            "kept (loops.json: inconsistent)."
+        )
     if outcome.report is not None and outcome.odometry_report is not None:
         console.print(_scores_table(outcome))
     else:

@@ -413,6 +413,7 @@ def test_map_says_how_many_candidates_asked_the_odometry_for_too_much(
     output = " ".join(result.output.split())
     assert "3 loop candidate(s), 0 accepted" in output
     assert "1 candidate(s) fit but asked the odometry for more than its uncertainty allows" in output
+    assert "2 loop(s) passed every check of their own but close no cycle with the loops kept" in output
     (folder,) = [p for p in tmp_path.iterdir() if p.name.startswith("20")]
     metrics = json.loads((folder / "metrics.json").read_text())
     assert metrics["loops"]["by_outcome"] == {"odometry": 1, "inconsistent": 2}
