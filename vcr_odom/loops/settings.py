@@ -46,8 +46,8 @@ class LoopSettings(Settings):
         default=0.99,
         gt=0,
         lt=1,
-        description="A node is a candidate where the odometry's position uncertainty between the visits "
-        "(propagated along the path) gives a revisit at least 1 - this probability (a chi-square gate).",
+        description="A node is a candidate unless the odometry's position uncertainty between the visits "
+        "(propagated along the path) makes a revisit less likely than 1 - this (a chi-square gate).",
     )
     attempt_spacing_m: float = Field(default=6.0, ge=0, description="Path between two attempts on a passage.")
     passage_attempts: int = Field(
@@ -138,7 +138,10 @@ class LoopSettings(Settings):
         default=2.0, gt=0, description="A road's slope plus the ground fit's noise."
     )
     walls_sigma_deg: float = Field(
-        default=1.0, gt=0, description="A node's walls' up error (a narrow view sees walls at a slant)."
+        default=1.0,
+        gt=0,
+        description="A node's walls' up error, for the test whether to give the priors at all (in the "
+        "graph each node's walls weigh by their own information).",
     )
     tilt_test_sigmas: float = Field(
         default=3.0,
