@@ -40,8 +40,7 @@ class Node:
     """One keyframe: ``position`` in the run's frame list, ``pose`` the odometry's (frame 0 world),
     ``path_m`` the distance driven from the first frame, ``cloud`` the coarse voxel cloud (float32 xyz)
     on a grid of ``cloud_voxel`` m, ``ground`` the ground's upward normal in the node's frame (None
-    where none was seen), ``turned_deg`` the angle turned from the first frame (each registration's
-    rotation, summed)."""
+    where none was seen)."""
 
     position: int
     frame_index: int
@@ -50,7 +49,6 @@ class Node:
     cloud: NDArray[np.float32]
     ground: NDArray[np.float64] | None = None
     cloud_voxel: float = CLOUD_VOXEL_M
-    turned_deg: float = 0.0
 
     @property
     def nbytes(self) -> int:
@@ -131,17 +129,12 @@ class NodeRecorder:
         self.poses: list[Transform] = []
         self.frame_indices: list[int] = []
         self.path: list[float] = []
-        self.turned: list[float] = []
         self._last_points: Points | None = None
 
     def __call__(self, index: int, pose: Transform, points: Points) -> None:
         pose = np.asarray(pose, dtype=np.float64)
-        step, turn = 0.0, 0.0
-        if self.poses:
-            step = float(np.linalg.norm(pose[:3, 3] - self.poses[-1][:3, 3]))
-            turn = math.degrees(float(rotation_angle((invert(self.poses[-1]) @ pose)[:3, :3])))
+        step = float(np.linalg.norm(pose[:3, 3] - self.poses[-1][:3, 3])) if self.poses else 0.0
         self.path.append((self.path[-1] if self.path else 0.0) + step)
-        self.turned.append((self.turned[-1] if self.turned else 0.0) + turn)
         self.poses.append(pose)
         self.frame_indices.append(index)
         if not self.nodes or self._far_from_last_node(pose):
@@ -179,7 +172,6 @@ class NodeRecorder:
                 cloud=voxel_cloud(points, self.cloud_voxel),
                 ground=ground_normal(points),
                 cloud_voxel=self.cloud_voxel,
-                turned_deg=self.turned[position],
             )
         )
 

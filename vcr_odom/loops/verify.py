@@ -154,7 +154,9 @@ def fit_information(
     within ``distance``: its overlap, its inlier RMSE, and its point-to-plane Gauss-Newton Hessian
     (rows ``[p x n, n]``: a corridor's walls hold nothing along it) scaled to ``points`` independent
     points (default ``information_points``) of the fit's own point-to-plane noise (at least
-    ``min_fit_rmse_m``). Odometry edges and loops are weighed alike by it."""
+    ``min_fit_rmse_m``). Odometry edges and loops are weighed alike by it. Not open3d's
+    ``get_information_matrix_from_point_clouds``: it is point-to-point, its translation block a count of
+    points that no corridor weakens; one KD-tree query gives the correspondences, overlap and RMSE."""
     moved = np.asarray(source.points) @ transform[:3, :3].T + transform[:3, 3]
     target_points = np.asarray(target.points)
     gaps, nearest = cKDTree(target_points).query(moved, distance_upper_bound=distance)
