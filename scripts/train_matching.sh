@@ -14,6 +14,9 @@
 # history and best weights to CARRIED (default weights/training/matching) to be committed. A WORK_DIR
 # with no run of its own resumes from CARRIED; the drives and caches are rebuilt byte for byte from
 # their seeds. STEPS=prepare builds the drives and caches only.
+# A follow-up run beside it: RUN (default train) names its folder under WORK_DIR, LR (default 3e-4) its
+# learning rate, REPEAT (seeds of DRIVES below) the drives whose pairs it sees twice an epoch, and
+# TRAIN_ARGS more `vcr-odom train` options (e.g. "--pose-weight 2"); give it its own CARRIED.
 # Held out of training: kitti-sample frames 40-59, synthetic seeds 1xx, 3xx, 4xx, 6xx, 7xx and 9xx
 # (benchmarks/ablation.py evaluates on 9xx).
 set -euo pipefail
@@ -24,20 +27,22 @@ VCR=${VCR:-.venv/bin/vcr-odom}
 INIT=${INIT:-weights/vcr-default.safetensors}
 EPOCHS=${EPOCHS:-4}
 export OMP_NUM_THREADS=${THREADS:-2}
+RUN=${RUN:-train}
+LR=${LR:-3e-4}
 mkdir -p "$WORK"
 CARRIED=${CARRIED:-weights/training/matching}
 RUN_FILES=(last.pt history.json run.json best.safetensors)
 if [ "${STEPS:-all}" = save ]; then
-  [ -f "$WORK/train/last.pt" ] || { echo "no run to save in $WORK/train" >&2; exit 1; }
+  [ -f "$WORK/$RUN/last.pt" ] || { echo "no run to save in $WORK/$RUN" >&2; exit 1; }
   mkdir -p "$CARRIED"
-  for f in "${RUN_FILES[@]}"; do [ ! -f "$WORK/train/$f" ] || cp "$WORK/train/$f" "$CARRIED/$f.tmp"; done
+  for f in "${RUN_FILES[@]}"; do [ ! -f "$WORK/$RUN/$f" ] || cp "$WORK/$RUN/$f" "$CARRIED/$f.tmp"; done
   for f in "${RUN_FILES[@]}"; do [ ! -f "$CARRIED/$f.tmp" ] || mv "$CARRIED/$f.tmp" "$CARRIED/$f"; done
-  echo "saved the run of $WORK/train to $CARRIED"
+  echo "saved the run of $WORK/$RUN to $CARRIED"
   exit 0
 fi
-if [ ! -f "$WORK/train/last.pt" ] && [ -f "$CARRIED/last.pt" ]; then
-  mkdir -p "$WORK/train"
-  for f in "${RUN_FILES[@]}"; do [ ! -f "$CARRIED/$f" ] || cp "$CARRIED/$f" "$WORK/train/$f"; done
+if [ ! -f "$WORK/$RUN/last.pt" ] && [ -f "$CARRIED/last.pt" ]; then
+  mkdir -p "$WORK/$RUN"
+  for f in "${RUN_FILES[@]}"; do [ ! -f "$CARRIED/$f" ] || cp "$CARRIED/$f" "$WORK/$RUN/$f"; done
   echo "resuming the run carried in $CARRIED" >&2
 fi
 
@@ -68,7 +73,9 @@ CACHES=()
 # shellcheck source=benchmarks/synth_drives.sh
 . benchmarks/synth_drives.sh
 for spec in "${DRIVES[@]}"; do
-  CACHES+=(--cache "$(cache_drive "$WORK" "$VCR" "$spec" 2 512)")
+  cache=$(cache_drive "$WORK" "$VCR" "$spec" 2 512)
+  CACHES+=(--cache "$cache")
+  for seed in ${REPEAT:-}; do [ "$seed" != "${spec%% *}" ] || CACHES+=(--cache "$cache"); done
 done
 [ -f "$WORK/cache_kitti_0_40.npz" ] || "$VCR" cache --data-root "$KITTI" --seq 00 --frames 0:40 --copies 4 \
   --input-max-range 80 --num-points 512 --out "$WORK/cache_kitti_0_40.npz" >/dev/null
@@ -81,9 +88,9 @@ CACHES+=(--cache "$WORK/cache_kitti_0_40.npz")
 # At 80 m and 512 points (the file runs at 1024: every layer is shared over points); best epoch by
 # the validation inlier ratio (each cache's contiguous 20 % block).
 resume_flag() { [ -f "$1/last.pt" ] && echo --resume || true; }
-# shellcheck disable=SC2046  # resume_flag prints one word or none
+# shellcheck disable=SC2046,SC2086  # resume_flag prints one word or none; TRAIN_ARGS splits into options
 "$VCR" train "${CACHES[@]}" --protocol odometry --protocol same-scan --max-motion 15 --reverse \
-  --augment-yaw 180 --objective matching --epochs "$EPOCHS" --batch-size 8 --lr 3e-4 --seed 7 --device cpu \
+  --augment-yaw 180 --objective matching --epochs "$EPOCHS" --batch-size 8 --lr "$LR" --seed 7 --device cpu \
   --select-on inliers --input-max-range 80 --num-points 512 --init-weights "$INIT" \
-  --checkpoint-every "${CHECKPOINT_EVERY:-50}" --out "$WORK/train" $(resume_flag "$WORK/train")
-echo "weights: $WORK/train/best.safetensors"
+  --checkpoint-every "${CHECKPOINT_EVERY:-50}" --out "$WORK/$RUN" ${TRAIN_ARGS:-} $(resume_flag "$WORK/$RUN")
+echo "weights: $WORK/$RUN/best.safetensors"
