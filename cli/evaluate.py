@@ -11,7 +11,7 @@ from rich.markup import escape
 from vcr_odom.cli.progress import EXIT_CODES_HELP, console, notes
 from vcr_odom.cli.tables import report_table
 from vcr_odom.evaluation.files import evaluate_files, write_evaluation
-from vcr_odom.results import check_output_file
+from vcr_odom.results import check_output_file, latest_trajectory, recorded_calibration
 
 
 @click.command("eval", epilog=EXIT_CODES_HELP)
@@ -26,8 +26,17 @@ from vcr_odom.results import check_output_file
     "--est",
     "est_path",
     type=click.Path(path_type=Path, exists=True, dir_okay=False),
-    required=True,
-    help="Estimated poses, KITTI format (e.g. a run's trajectory_kitti.txt).",
+    default=None,
+    help="Estimated poses, KITTI format (e.g. a run's trajectory_kitti.txt). Default: the latest "
+    "run's, RESULTS_DIR/latest/trajectory_kitti.txt (the file scored is named).",
+)
+@click.option(
+    "--results-dir",
+    type=click.Path(path_type=Path, file_okay=False),
+    default=Path("results"),
+    show_default=True,
+    help="Where run, map and compare wrote their result folders: its 'latest' link names the run "
+    "scored when --est is not given.",
 )
 @click.option(
     "--calib",
@@ -68,7 +77,8 @@ from vcr_odom.results import check_output_file
 )
 def evaluate(
     gt_path: Path,
-    est_path: Path,
+    est_path: Path | None,
+    results_dir: Path,
     calib: Path | None,
     frames: str | None,
     stride: int | None,
@@ -80,6 +90,13 @@ def evaluate(
 
     Warns when --est comes from a run whose result.json says partial, or has no result.json.
     """
+    if est_path is None:
+        est_path = latest_trajectory(results_dir)
+        notes.print(f"scoring the latest run: {escape(str(est_path))}", highlight=False, soft_wrap=True)
+        if calib is None and (calib := recorded_calibration(est_path.parent)) is not None:
+            notes.print(
+                f"with the calibration it read: {escape(str(calib))}", highlight=False, soft_wrap=True
+            )
     to_stdout = json_path is not None and str(json_path) == "-"
     if json_path is not None and not to_stdout:
         check_output_file(json_path, "--json")

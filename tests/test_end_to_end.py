@@ -104,6 +104,29 @@ def test_run_writes_a_complete_result_folder_that_eval_scores_identically(synthe
     assert (tmp_path / "eval.png").is_file() and (tmp_path / "eval_pair_errors.png").is_file()
 
 
+def test_eval_without_est_scores_the_latest_run_and_names_it(synthetic_root, tmp_path, monkeypatch):
+    # The mission's command lines as typed: `run`, then `eval --gt` with no --est, in one folder.
+    monkeypatch.chdir(tmp_path)
+    invoke("run", "--data-root", str(synthetic_root), "--seq", "00", "--method", "icp", "--frames", "0:6")
+    run_metrics = json.loads((tmp_path / "results" / "latest" / "metrics.json").read_text())
+    result = CliRunner().invoke(
+        cli, ["eval", "--gt", str(synthetic_root / "poses" / "00.txt"), "--json", "-"], catch_exceptions=False
+    )
+    assert result.exit_code == 0, result.output
+    scored = (tmp_path / "results" / "latest").resolve() / "trajectory_kitti.txt"
+    assert f"scoring the latest run: {scored}" in result.stderr
+    report = json.loads(result.stdout)
+    assert report["pairs"]["trans_rmse_m"] == pytest.approx(run_metrics["pairs"]["trans_rmse_m"], rel=1e-6)
+
+
+def test_eval_without_est_and_without_a_run_names_what_is_missing(synthetic_root, tmp_path):
+    result = CliRunner().invoke(
+        cli, ["eval", "--gt", str(synthetic_root / "poses" / "00.txt"), "--results-dir", str(tmp_path)]
+    )
+    assert result.exit_code == 2
+    assert f"--est not given and {tmp_path / 'latest'} does not exist" in result.output
+
+
 def test_strided_run_is_matched_to_ground_truth_through_frames_json(synthetic_root, tmp_path):
     results = tmp_path / "results"
     invoke(

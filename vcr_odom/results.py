@@ -235,6 +235,47 @@ def holds_trajectory(folder: str | os.PathLike[str]) -> bool:
     return any(path.is_file() and path.stat().st_size > 0 for path in candidates)
 
 
+def latest_trajectory(root: str | os.PathLike[str]) -> Path:
+    """The trajectory of the run ``<root>/latest`` points at, for ``eval`` without ``--est``: the
+    folder it resolves to, so that the user is told which run was scored. A comparison holds one
+    trajectory per row: the user must choose, so it is an error naming them."""
+    link = Path(root) / "latest"
+    if not link.is_dir():
+        raise ConfigError(
+            f"--est not given and {link} does not exist: run `vcr-odom run` first, or give --est FILE "
+            "(a KITTI-format trajectory)"
+        )
+    folder = link.resolve()
+    own = folder / "trajectory_kitti.txt"
+    if own.is_file():
+        return own
+    rows = sorted(str(path) for path in folder.glob("*/trajectory_kitti.txt"))
+    raise ConfigError(
+        f"--est not given and the latest result {folder} holds "
+        + (
+            f"{len(rows)} trajectories (a comparison): give --est one of {', '.join(rows)}"
+            if rows
+            else "no trajectory_kitti.txt: give --est FILE"
+        )
+    )
+
+
+def recorded_calibration(folder: str | os.PathLike[str]) -> Path | None:
+    """The calib.txt the run in ``folder`` read (its ``config.json``: ``--calib``, else the KITTI
+    layout's ``sequences/SEQ/calib.txt``) where it still exists: scoring that run as it scored itself
+    takes the same frame."""
+    try:
+        selection = json.loads((Path(folder) / "config.json").read_text())["config"]["selection"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    if not isinstance(selection, dict):
+        return None
+    calib = selection.get("calib")
+    if not calib and selection.get("data_root") and selection.get("seq"):
+        calib = Path(selection["data_root"]) / "sequences" / str(selection["seq"]) / "calib.txt"
+    return Path(calib) if calib and Path(calib).is_file() else None
+
+
 def point_latest_at(root: str | os.PathLike[str], folder: str | os.PathLike[str]) -> bool:
     """Swap ``<root>/latest`` atomically to ``folder`` (a new link renamed over the old one), but only
     once ``folder`` holds a trajectory: ``latest`` is what a user scores next. Returns whether it moved."""
