@@ -23,10 +23,11 @@ from vcr_odom.cli.progress import (
     interrupt_label,
 )
 from vcr_odom.cli.tables import report_table
+from vcr_odom.cli.view import finish_live_view, open_live_view, pop_live_options, visualize_options
 from vcr_odom.data.selection import FrameSelection
 from vcr_odom.errors import ConfigError
 from vcr_odom.evaluation.rows import parse_row_spec
-from vcr_odom.odometry.factory import DEFAULT_GLOBAL_POLISH, GLOBAL_METHODS
+from vcr_odom.odometry.factory import DEFAULT_GLOBAL_POLISH, GLOBAL_METHODS, parse_method_spec
 from vcr_odom.odometry.polish import POLISHES
 from vcr_odom.odometry.run import RunSettings, run_sequence
 from vcr_odom.registration import METHOD_NAMES
@@ -60,6 +61,30 @@ def reject_unused_options(ctx: click.Context, specs: Iterable[str]) -> None:
         )
 
 
+def check_method(ctx: click.Context, spec: str) -> str:
+    """A bad name or polish in ``--method NAME[+POLISH]`` is a usage error naming it, before any work."""
+    try:
+        parse_method_spec(spec)
+    except ConfigError as error:
+        raise click.BadParameter(str(error), ctx=ctx, param_hint="'--method'") from error
+    return spec
+
+
+def split_method(ctx: click.Context, options: dict[str, object]) -> None:
+    """``--method NAME+POLISH`` as compare's ``-b`` spells it: the name, and the polish as ``--polish``
+    (which, when given too, must agree)."""
+    spec = str(options["method"])
+    name, polish = parse_method_spec(spec)
+    options["method"] = name
+    if "+" not in spec:
+        return
+    if options.get("polish") is not None and options["polish"] != polish:
+        raise click.UsageError(
+            f"--method {spec} and --polish {options['polish']} disagree: give one", ctx=ctx
+        )
+    options["polish"] = polish
+
+
 def given(ctx: click.Context, name: str) -> bool:
     """Whether the user gave option ``name`` (on the command line or from its environment variable)."""
     source = ctx.get_parameter_source(name)
@@ -73,10 +98,12 @@ def given(ctx: click.Context, name: str) -> bool:
 @sequence_options
 @click.option(
     "--method",
-    type=click.Choice(list(METHOD_NAMES)),
+    metavar="NAME[+POLISH]",
     default=RunSettings.model_fields["method"].default,
     show_default=True,
-    help="Registration method (see the list below).",
+    callback=lambda ctx, param, value: check_method(ctx, value),
+    help=f"Registration method ({', '.join(METHOD_NAMES)}; the list below), with its polish in the "
+    "spelling compare and the tables use (vcr+none = --method vcr --polish none).",
 )
 @click.option(
     "--polish",
@@ -101,6 +128,7 @@ def given(ctx: click.Context, name: str) -> bool:
 @kiss_polish_options
 @vcr_options
 @results_option
+@visualize_options
 @click.pass_context
 def run(ctx: click.Context, selection: FrameSelection, **options: object) -> None:
     """Estimate the trajectory of a sequence and write it (KITTI + TUM), metrics and a plot.
@@ -108,9 +136,12 @@ def run(ctx: click.Context, selection: FrameSelection, **options: object) -> Non
     The result folder's result.json says whether it is complete or partial (Ctrl-C, SIGTERM or SIGHUP,
     an error part-way, or a run killed after a checkpoint); the trajectory files always agree with it.
     """
+    split_method(ctx, options)
+    live_options = pop_live_options(ctx, options)
     settings = RunSettings(selection=selection, **options)
     reject_unused_options(ctx, [settings.method if settings.polish is None else settings.spec])
-    outcome = run_sequence(settings, progress=frame_progress)
+    live = open_live_view(live_options)
+    outcome = run_sequence(settings, progress=frame_progress, on_frame=live)
     result, report = outcome.run, outcome.report
     if outcome.folder is None:
         exit_interrupted(f"Interrupted ({interrupt_label()}) before the first frame; no result folder kept.")
@@ -143,6 +174,7 @@ def run(ctx: click.Context, selection: FrameSelection, **options: object) -> Non
             f"Interrupted ({interrupt_label()}) after {len(result.frame_indices)} frames; the partial "
             f"result is kept in {outcome.folder} (result.json: partial)."
         )
+    finish_live_view(live, outcome)
 
 
 def why_unscored(has_ground_truth: bool, frames: int) -> str:

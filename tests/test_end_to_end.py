@@ -127,6 +127,17 @@ def test_eval_without_est_and_without_a_run_names_what_is_missing(synthetic_root
     assert f"--est not given and {tmp_path / 'latest'} does not exist" in result.output
 
 
+def test_run_method_takes_the_name_plus_polish_spelling_of_compare_and_the_tables(synthetic_root, tmp_path):
+    invoke(
+        "run", "--data-root", str(synthetic_root), "--method", "icp10+icp", "--frames", "0:4",
+        "--results-dir", str(tmp_path),
+    )  # fmt: skip
+    folder = (tmp_path / "latest").resolve()
+    assert folder.name.endswith("_icp10-icp")
+    config = json.loads((folder / "config.json").read_text())["config"]
+    assert (config["method"], config["polish"]) == ("icp10", "icp")
+
+
 def test_strided_run_is_matched_to_ground_truth_through_frames_json(synthetic_root, tmp_path):
     results = tmp_path / "results"
     invoke(
@@ -186,7 +197,9 @@ def test_compare_prints_every_method_and_overlays_them(synthetic_root, tmp_path)
     [
         (["run", "--data-root", "{root}", "--seq", "42"], "sequences found: 00"),
         (["run", "--data-root", "{root}", "--stride", "100"], "at least 2"),
-        (["run", "--data-root", "{root}", "--method", "nope"], "'nope' is not one of"),
+        (["run", "--data-root", "{root}", "--method", "nope"], "unknown method 'nope'"),
+        (["run", "--data-root", "{root}", "--method", "vcr+nope"], "unknown polish 'nope'"),
+        (["run", "--data-root", "{root}", "--method", "vcr+none", "--polish", "icp"], "disagree"),
         (["run", "--data-root", "{root}", "--vcr-passes", "0"], "--vcr-passes"),
         (["eval", "--gt", "{root}/poses/00.txt", "--est", "{short}"], "has 3 poses"),
     ],
