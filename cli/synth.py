@@ -18,6 +18,7 @@ from vcr_odom.synth import (
     SynthSequence,
     write_sequence,
 )
+from vcr_odom.synth.kitti_layout import check_replaceable
 
 
 def _check_seq(ctx: click.Context, param: click.Parameter, value: str) -> str:
@@ -82,6 +83,14 @@ def _check_seq(ctx: click.Context, param: click.Parameter, value: str) -> str:
     help="Frames per second (times.txt and the motion between frames follow it), e.g. 2 for a 2 Hz scanner.",
 )
 @config_options(SynthConfig, ("route", "motion", "keyframes", "keyframe_angle", "thin"))
+@click.option(
+    "--force",
+    is_flag=True,
+    default=False,
+    help="Replace sequences/<seq> and poses/<seq>.txt even where synth did not make them (a real "
+    "dataset's scans and ground truth are lost). Without it synth writes only where nothing is, into "
+    "an empty folder, or over a sequence it made itself (its synth.json).",
+)
 def synth(
     out: Path,
     seq: str,
@@ -98,15 +107,18 @@ def synth(
     keyframes: float | None,
     keyframe_angle: float,
     thin: float | None,
+    force: bool,
 ) -> None:
     """Generate a synthetic LiDAR sequence with exact ground truth (the built-in data set).
 
     The sequence is written beside its place and renamed into it, so an interrupted synth over an
-    existing sequence leaves the old or the new one, never a mix. With --keyframes, --frames frames
+    existing sequence leaves the old or the new one, never a mix. It replaces only a sequence it made
+    itself (its synth.json), unless --force. With --keyframes, --frames frames
     are generated and only the keyframes among them written (numbered from 0, with their own times
     and poses).
     """
     check_output_folder(out, "--out")
+    check_replaceable(out / "sequences" / seq, out / "poses" / f"{seq}.txt", force=force)
     config = SynthConfig(
         frames=frames,
         seed=seed,
@@ -125,7 +137,7 @@ def synth(
     sequence = SynthSequence(config)
     try:
         with frame_progress(f"synth seed {seed}", len(sequence)) as advance:
-            written = write_sequence(sequence, out, seq, progress=advance)
+            written = write_sequence(sequence, out, seq, progress=advance, force=force)
     except KeyboardInterrupt as stopped:
         target = Path(out) / "sequences" / seq
         note_kept(

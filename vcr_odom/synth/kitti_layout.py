@@ -4,6 +4,7 @@ reads it too."""
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import shutil
@@ -21,6 +22,7 @@ from vcr_odom.errors import ConfigError, DataError
 from vcr_odom.geometry import lidar_to_camera_poses
 from vcr_odom.io import (
     atomic_write_bytes,
+    atomic_write_text,
     check_free_space,
     describe_os_error,
     temporary_sibling,
@@ -28,6 +30,7 @@ from vcr_odom.io import (
     write_kitti_poses,
     write_times,
 )
+from vcr_odom.jsonsafe import json_safe
 from vcr_odom.synth.calibration import KITTI_TR, kitti_calib
 from vcr_odom.synth.sequence import SynthConfig, SynthSequence
 
@@ -66,8 +69,20 @@ def write_bin(path: Path, points: NDArray[np.float32]) -> Path:
     return atomic_write_bytes(path, np.ascontiguousarray(points, dtype=np.float32).tobytes())
 
 
-SYNTH_ENTRIES = frozenset({"velodyne", "calib.txt", "times.txt"})
-"""What :func:`write_sequence` puts in a sequence folder: a folder holding anything else is not ours."""
+MANIFEST = "synth.json"
+"""Written into every sequence folder synth makes: what it made (its configuration, frame count and
+poses file). Why: a real download holds the same names synth writes (``velodyne/``, ``calib.txt``,
+``poses/<seq>.txt``), so only this file tells a sequence synth may replace from one it must not."""
+MANIFEST_MADE_BY = "vcr-odom synth"
+
+
+def made_by_synth(seq_dir: Path) -> bool:
+    """Whether ``seq_dir`` holds synth's manifest (:data:`MANIFEST`): a sequence synth wrote itself."""
+    try:
+        manifest = json.loads((seq_dir / MANIFEST).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    return isinstance(manifest, dict) and manifest.get("made_by") == MANIFEST_MADE_BY
 
 
 def write_sequence(
@@ -75,6 +90,8 @@ def write_sequence(
     out_root: str | os.PathLike[str],
     seq: str = "00",
     progress: Callable[[int], None] | None = None,
+    *,
+    force: bool = False,
 ) -> WrittenSequence:
     """Write ``sequence`` under ``out_root`` in the KITTI odometry layout.
 
@@ -83,10 +100,13 @@ def write_sequence(
     interrupted or killed synth over an existing sequence leaves the old one or the new one, never
     frames of both: at worst a sequence without its poses file, which is how an incomplete sequence
     shows. A write that fails (a full disk) leaves the old sequence whole and raises a DataError
-    naming the sequence; the free space is checked after the first frame. A folder holding files synth
-    does not write (a real dataset's images, say) is refused rather than replaced. ``progress`` is
-    called with the number of frames written so far. Only the sequence's frames are written: with
-    keyframes, the kept ones, numbered from 0, with their own times and poses.
+    naming the sequence; the free space is checked after the first frame.
+
+    What synth may replace (:func:`check_replaceable`, before any work): nothing, an empty sequence
+    folder, or one it made itself (its :data:`MANIFEST`); anything else (a real dataset's scans, its
+    ground-truth poses) only with ``force``. ``progress`` is called with the number of frames written
+    so far. Only the sequence's frames are written: with keyframes, the kept ones, numbered from 0,
+    with their own times and poses.
     """
     if not SEQUENCE_NAME.match(seq):
         raise ConfigError(f"seq must be letters, digits, '-' or '_', got {seq!r}")
@@ -94,7 +114,7 @@ def write_sequence(
     root = Path(out_root)
     seq_dir = root / "sequences" / seq
     poses_file = root / "poses" / f"{seq}.txt"
-    _check_replaceable(seq_dir)
+    check_replaceable(seq_dir, poses_file, force=force)
     seq_dir.parent.mkdir(parents=True, exist_ok=True)
     poses_file.parent.mkdir(parents=True, exist_ok=True)
     _remove_stale(seq_dir, poses_file)
@@ -104,6 +124,7 @@ def write_sequence(
     try:
         try:
             _write_staging(sequence, staging, seq_dir, progress)
+            _write_manifest(staging / MANIFEST, sequence, seq, poses_file)
             write_kitti_poses(poses_pending, lidar_to_camera_poses(sequence.gt_poses, KITTI_TR))
         except (OSError, DataError) as error:
             failure = _not_written(error, seq_dir, existed)
@@ -171,17 +192,37 @@ def _remove_stale(seq_dir: Path, poses_file: Path) -> None:
         stale.unlink(missing_ok=True)
 
 
-def _check_replaceable(seq_dir: Path) -> None:
-    """A ConfigError, before any work, where ``seq_dir`` is not a folder synth may replace."""
+def check_replaceable(seq_dir: Path, poses_file: Path, *, force: bool = False) -> None:
+    """A ConfigError, before any work, where writing ``seq_dir`` and ``poses_file`` would replace what
+    synth did not make: one rule, whatever the folder holds. Free to write: nothing there yet, an
+    empty sequence folder (with no poses file), or a folder with synth's :data:`MANIFEST` (its poses
+    file is synth's too). ``force`` replaces anything but a file where the folder goes."""
     if seq_dir.exists() and not seq_dir.is_dir():
         raise ConfigError(f"--out: {seq_dir} exists and is not a folder")
-    if seq_dir.is_dir():
-        foreign = sorted(p.name for p in seq_dir.iterdir() if p.name not in SYNTH_ENTRIES)
-        if foreign:
-            raise ConfigError(
-                f"--out: {seq_dir} holds files synth does not write ({', '.join(foreign[:5])}); "
-                "refusing to replace it: choose another --out or --seq"
-            )
+    if force or (seq_dir.is_dir() and made_by_synth(seq_dir)):
+        return
+    held = sorted(p.name for p in seq_dir.iterdir())[:5] if seq_dir.is_dir() else []
+    if held:
+        what = f"{seq_dir} holds {', '.join(held)}, and synth did not make it (it has no {MANIFEST})"
+    elif poses_file.exists():
+        what = f"{poses_file} exists, and synth did not write it (no {seq_dir / MANIFEST} beside it)"
+    else:
+        return
+    raise ConfigError(
+        f"--out: {what}: refusing to replace it; choose another --out or --seq, or give --force to replace it"
+    )
+
+
+def _write_manifest(path: Path, sequence: SynthSequence, seq: str, poses_file: Path) -> None:
+    """Synth's :data:`MANIFEST`: it made this folder (so a later synth may replace it), and how."""
+    manifest = {
+        "made_by": MANIFEST_MADE_BY,
+        "seq": seq,
+        "frames": len(sequence),
+        "poses_file": f"{poses_file.parent.name}/{poses_file.name}",
+        "config": sequence.config.to_dict(),
+    }  # no time stamp: the same seed writes byte-identical files
+    atomic_write_text(path, json.dumps(json_safe(manifest), indent=2) + "\n")
 
 
 def _replace_folder(new: Path, target: Path) -> None:
@@ -200,12 +241,15 @@ def generate_sequence(
     seq: str = "00",
     config: SynthConfig | None = None,
     progress: Callable[[int], None] | None = None,
+    *,
+    force: bool = False,
     **options: Any,
 ) -> WrittenSequence:
     """Generate a synthetic sequence and write it in the KITTI layout (``<out_root>/sequences/<seq>``).
 
     ``options`` are :class:`SynthConfig` fields (``frames``, ``seed``, ``speed``, ``sensor``,
     ``height``, ``scene``, ``stops``, ``frame_period``, ``motion``, ``keyframes``, ``keyframe_angle``,
-    ``thin``, ``route``), applied on top of ``config`` when one is given.
+    ``thin``, ``route``), applied on top of ``config`` when one is given. ``force``: see
+    :func:`write_sequence`.
     """
-    return write_sequence(SynthSequence(config, **options), out_root, seq, progress)
+    return write_sequence(SynthSequence(config, **options), out_root, seq, progress, force=force)

@@ -1,0 +1,86 @@
+"""Issue 61's probe of synth, map, train/pretrain, compare and cache: each case drives the real command
+(click's CliRunner in-process, or the console script in a subprocess where a real signal is sent) and
+checks the exit code, one line naming the input, that nothing already written is lost and, for a
+subprocess, that it has exited."""
+
+from __future__ import annotations
+
+import os
+import shutil
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner, Result
+from conftest import SMALL_SYNTHETIC_FRAMES
+
+from vcr_odom.cli.main import cli
+
+FRAMES = SMALL_SYNTHETIC_FRAMES
+
+
+def invoke(*args: object) -> Result:
+    return CliRunner().invoke(cli, [os.fsdecode(a) if isinstance(a, Path) else str(a) for a in args])
+
+
+def assert_fails(result: Result, code: int, *named: object) -> str:
+    """Exit ``code``, one error line and no traceback, naming every one of ``named``; the line."""
+    assert result.exit_code == code, result.output
+    assert result.exception is None or isinstance(result.exception, SystemExit), result.exception
+    assert "Traceback" not in result.output
+    errors = [line for line in result.output.splitlines() if "Error" in line]
+    assert len(errors) == 1, result.output
+    for name in named:
+        assert str(name) in result.output, (name, result.output)
+    return errors[0]
+
+
+def contents(root: Path) -> dict[str, bytes]:
+    """Every file under ``root`` with its bytes: what must survive a refused command."""
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+# -- 1. synth writes only where nothing is, or over what it made ------------------------------------
+
+
+@pytest.fixture
+def real_download(small_synthetic_root: Path, tmp_path: Path) -> Path:
+    """A KITTI download as a user has it: scans, calib.txt and poses/00.txt, none made by synth."""
+    root = tmp_path / "kitti"
+    source = small_synthetic_root / "sequences" / "00"
+    shutil.copytree(source / "velodyne", root / "sequences" / "00" / "velodyne")
+    shutil.copy(source / "calib.txt", root / "sequences" / "00" / "calib.txt")
+    (root / "poses").mkdir()
+    shutil.copy(small_synthetic_root / "poses" / "00.txt", root / "poses" / "00.txt")
+    return root
+
+
+def test_synth_refuses_a_real_download_and_leaves_it_whole(real_download: Path) -> None:
+    before = contents(real_download)
+    result = invoke("synth", "--out", real_download, "--frames", "2")
+    line = assert_fails(result, 2, "--out", real_download / "sequences" / "00", "--force")
+    assert "synth.json" in line and "Wrote" not in result.output
+    assert contents(real_download) == before
+
+
+def test_synth_refuses_ground_truth_poses_without_their_scans(real_download: Path) -> None:
+    shutil.rmtree(real_download / "sequences")
+    before = contents(real_download)
+    result = invoke("synth", "--out", real_download, "--frames", "2")
+    assert_fails(result, 2, real_download / "poses" / "00.txt")
+    assert contents(real_download) == before
+
+
+def test_synth_replaces_what_it_made_and_anything_with_force(real_download: Path, tmp_path: Path) -> None:
+    out = tmp_path / "synthetic"
+    assert invoke("synth", "--out", out, "--frames", "3").exit_code == 0
+    assert (out / "sequences" / "00" / "synth.json").is_file()
+    again = invoke("synth", "--out", out, "--frames", "2", "--seed", "1")
+    assert again.exit_code == 0, again.output
+    assert len(list((out / "sequences" / "00" / "velodyne").iterdir())) == 2
+
+    (tmp_path / "empty" / "sequences" / "00").mkdir(parents=True)  # an empty folder is free too
+    assert invoke("synth", "--out", tmp_path / "empty", "--frames", "2").exit_code == 0
+
+    forced = invoke("synth", "--out", real_download, "--frames", "2", "--force")
+    assert forced.exit_code == 0, forced.output
+    assert len(list((real_download / "sequences" / "00" / "velodyne").iterdir())) == 2
