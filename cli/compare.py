@@ -59,7 +59,8 @@ def reject_bad_combinations(ctx: click.Context, protocol: str, specs: tuple[str,
     callback=_check_specs,
     help="A method as run spells it (vcr = VCR-Net with its default polish, vcr+none = alone, "
     "fpfh+icp, kiss-slam = KISS-SLAM with its loop closures, from the optional extra "
-    "vcr-odom[slam], vcr+loops = vcr then vcr-odom map's loop closure, ...); repeat for several. Default: {', '.join(DEFAULT_BASELINES)}.",
+    "vcr-odom[slam], vcr+loops = vcr then vcr-odom map's loop closure, ...); repeat for several. "
+    f"Default: {', '.join(DEFAULT_BASELINES)}.",
 )
 @click.option(
     "--protocol",

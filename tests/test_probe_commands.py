@@ -84,3 +84,16 @@ def test_synth_replaces_what_it_made_and_anything_with_force(real_download: Path
     forced = invoke("synth", "--out", real_download, "--frames", "2", "--force")
     assert forced.exit_code == 0, forced.output
     assert len(list((real_download / "sequences" / "00" / "velodyne").iterdir())) == 2
+
+
+# -- 17. compare --help -------------------------------------------------------------------------------
+
+
+def test_compare_help_names_the_default_baselines_not_source_code() -> None:
+    from vcr_odom.evaluation.compare import DEFAULT_BASELINES
+
+    result = invoke("compare", "--help")
+    assert result.exit_code == 0
+    text = " ".join(result.output.split())
+    assert "join(DEFAULT_BASELINES)" not in text and "{" not in text
+    assert f"Default: {', '.join(DEFAULT_BASELINES)}." in text
