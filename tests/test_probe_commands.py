@@ -97,3 +97,15 @@ def test_compare_help_names_the_default_baselines_not_source_code() -> None:
     text = " ".join(result.output.split())
     assert "join(DEFAULT_BASELINES)" not in text and "{" not in text
     assert f"Default: {', '.join(DEFAULT_BASELINES)}." in text
+
+
+# -- 19. a file that is not a frame cache ------------------------------------------------------------
+
+
+def test_a_text_file_as_cache_is_not_a_frame_cache_and_no_pickle_advice(tmp_path: Path) -> None:
+    notes = tmp_path / "notes.txt"
+    notes.write_text("frames 0-40 of drive 21\n")
+    result = invoke("train", "--cache", notes, "--device", "cpu", "--out", tmp_path / "run")
+    line = assert_fails(result, 1, notes, "not a frame cache made by `vcr-odom cache`")
+    assert "pickle" not in line.lower()
+    assert not (tmp_path / "run").exists()

@@ -148,6 +148,10 @@ class FrameCache:
         path = Path(path)
         if not path.is_file():
             raise DataError(f"frame cache {path} not found (build it with build_frame_cache)")
+        if not zipfile.is_zipfile(path):  # else np.load reads any other file as a pickle, and its error
+            raise DataError(  # says to load it unsafely: the wrong diagnosis and a dangerous advice
+                f"frame cache {path}: not a frame cache made by `vcr-odom cache` (not an .npz archive)"
+            )
         try:
             with np.load(path, allow_pickle=False) as data:
                 header = json.loads(str(data["header"]))
@@ -156,7 +160,9 @@ class FrameCache:
                 seeds = data["seeds"]
                 gt_poses = data["gt_poses"] if "gt_poses" in data.files else None
         except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.error) as error:
-            raise DataError(f"frame cache {path} is corrupt or not a frame cache: {error}") from error
+            raise DataError(
+                f"frame cache {path}: corrupt, or not a frame cache made by `vcr-odom cache`: {error}"
+            ) from error
         if not isinstance(header, dict) or header.get("version") != CACHE_VERSION:
             found = header.get("version") if isinstance(header, dict) else None
             raise DataError(f"frame cache {path} has version {found!r}; expected {CACHE_VERSION}")
