@@ -64,7 +64,7 @@ def figures(rows: list[dict]) -> list[dict]:
             'methods = ["icp"]\n[[dataset]]\nname = "a"\nfolder = "x"\n[[dataset]]\nname = "a"\nfolder = "y"\n',
             "a twice",
         ),
-        ('methods = ["icp"]\n[[dataset]]\nname = "a"\nfolder = "x"\nspeed = 3\n', "speed: Extra inputs"),
+        ('methods = ["icp"]\n[[dataset]]\nname = "a"\nfolder = "x"\nspeed = 3\n', "unknown key 'speed'"),
         ("methods = [icp\n", "not valid TOML"),
         (
             'methods = ["icp"]\n[[dataset]]\nname = "a"\nfolder = "x"\nstride = 2\n',
@@ -94,8 +94,11 @@ def test_relative_paths_are_taken_from_the_suite_files_folder(tmp_path: Path) ->
 
 @pytest.fixture(scope="module")
 def serial(data: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
-    """The suite with a broken dataset and sequence 01 again as a scan folder, one cell after the other."""
+    """The suite with a broken dataset (a scan folder with no scans: found when its cells run, unlike a
+    path that does not exist, refused before any) and sequence 01 again as a scan folder, one cell
+    after the other."""
     base = tmp_path_factory.mktemp("suite-serial")
+    (base / "gone").mkdir()
     extra = (
         f'[[dataset]]\nname = "gone"\nfolder = "{base}/gone"\n'
         f'[[dataset]]\nname = "scans"\nfolder = "{data}/sequences/01/velodyne"\n'
@@ -143,9 +146,9 @@ def test_a_failing_dataset_fails_alone_with_its_reason(serial: tuple[Path, Path]
     assert as_folder == same_frames  # sequence 01 read as a KITTI root and as a scan folder
     gone = [r for r in rows if r["dataset"] == "gone"]
     assert {r["status"] for r in gone} == {"failed"}
-    assert all("gone" in r["reason"] and "does not exist" in r["reason"] for r in gone)
+    assert all("gone" in r["reason"] and "no scans" in r["reason"] for r in gone)
     markdown = (out / "summary.md").read_text()
-    assert "## gone" in markdown and "failed: scan folder does not exist" in markdown
+    assert "## gone" in markdown and "failed: no scans" in markdown
     assert (out / "plots" / "a.png").is_file() and (out / "plots" / "t_rel.png").is_file()
 
 
