@@ -5,14 +5,23 @@ Why rows are read from disk, never kept in memory: a suite killed at any moment 
 must be summarised and resumed from its folders alone. A cell's folder ``cells/<dataset>/<method>_stride<K>``
 holds ``run``'s (or ``map``'s) transactional result folders, one per attempt, and ``failure.json``
 when its last attempt failed before publishing anything; the row comes from the attempt's
-``result.json`` and ``metrics.json``."""
+``result.json`` and ``metrics.json``.
+
+Why a cell is keyed by a digest of its settings and not only by its folder's name: the folder names a
+dataset, a method and a stride, but a suite's ``consult`` or ``device`` (or a newer default of ``run``)
+changes the result too. Each attempt's ``config.json`` records the settings it ran with; only attempts
+whose settings digest is the cell's count, so an edited suite reruns the cells it changes (the older
+attempts stay on disk) and leaves the others alone. A complete attempt whose ``metrics.json`` does not
+parse counts for nothing either: its figures are lost, so the cell is rerun, and its row says why."""
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import traceback
 from dataclasses import dataclass
+from functools import cache
 from pathlib import Path
 from typing import Any
 
@@ -21,6 +30,10 @@ from vcr_odom.results import read_marker, write_json
 from vcr_odom.suite.spec import DatasetEntry, SuiteSpec
 
 FAILURE_FILE = "failure.json"
+CONFIG_FILE = "config.json"
+UNSETTLED = ("command", "sequence", "results_dir")
+"""Keys of an attempt's ``config.json`` that are not its settings: the command (the method says it),
+the sequence's name (its source says it) and where it was written."""
 
 
 @dataclass(frozen=True)
@@ -78,14 +91,17 @@ def run_cell(cell: Cell, suite_folder: Path) -> dict[str, Any]:
 
 
 def record_failure(cell: Cell, suite_folder: Path, reason: str, details: str | None = None) -> dict[str, Any]:
-    """Mark ``cell`` failed (its process or node was lost, or its data is bad) and return its row."""
+    """Mark ``cell`` failed (its process or node was lost, or its data is bad) and return its row. The
+    failure carries the cell's digest: once the suite changes the cell, it no longer applies."""
     folder = cell_folder(suite_folder, cell)
     folder.mkdir(parents=True, exist_ok=True)
-    write_json(folder / FAILURE_FILE, {"reason": reason, "traceback": details})
+    write_json(folder / FAILURE_FILE, {"reason": reason, "traceback": details, "digest": cell_digest(cell)})
     return read_row(cell, suite_folder)
 
 
-def _run(cell: Cell, folder: Path) -> None:
+def cell_settings(cell: Cell) -> Any:
+    """The ``RunSettings`` (or ``MapSettings`` for ``+loops``) the cell runs with, into its folder
+    ``results_dir`` left at its default (the caller sets it)."""
     from vcr_odom.evaluation.rows import split_loops
     from vcr_odom.odometry.factory import parse_method_spec
 
@@ -95,20 +111,59 @@ def _run(cell: Cell, folder: Path) -> None:
         "selection": cell.dataset.selection(cell.stride),
         "method": method,
         "polish": polish,
-        "results_dir": folder,
     }
-    if method == "vcr":
+    if method == "vcr" or mapped:  # a map cell's loop network runs on the suite's device too
         options["device"] = cell.device
     if cell.consult is not None and polish != "none" and method in ("vcr", "fpfh"):
         options["consult"] = cell.consult
     if mapped:
-        from vcr_odom.map_command import MapSettings, map_sequence
+        from vcr_odom.map_command import MapSettings
 
-        map_sequence(MapSettings(**options))
+        return MapSettings(**options)
+    from vcr_odom.odometry.run import RunSettings
+
+    return RunSettings(**options)
+
+
+@cache
+def expected_settings(cell: Cell) -> dict[str, Any]:
+    """What a current attempt's ``config.json`` says of its settings (JSON types, as read back)."""
+    settings = json.loads(json.dumps(cell_settings(cell).to_dict()))
+    return {key: value for key, value in settings.items() if key not in UNSETTLED}
+
+
+def settings_digest(settings: dict[str, Any]) -> str:
+    """A short digest of ``settings`` (key order ignored)."""
+    text = json.dumps(settings, sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def cell_digest(cell: Cell) -> str:
+    """The digest of everything that changes the cell's result: its run's (or map's) settings."""
+    return settings_digest(expected_settings(cell))
+
+
+def attempt_settings(path: Path) -> dict[str, Any] | None:
+    """The settings an attempt ran with, from its ``config.json`` (None where it cannot be read)."""
+    try:
+        config = json.loads((path / CONFIG_FILE).read_text(encoding="utf-8"))["config"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    if not isinstance(config, dict):
+        return None
+    return {key: value for key, value in config.items() if key not in UNSETTLED}
+
+
+def _run(cell: Cell, folder: Path) -> None:
+    settings = cell_settings(cell).with_changes(results_dir=folder)
+    if cell.mapped:
+        from vcr_odom.map_command import map_sequence
+
+        map_sequence(settings)
     else:
-        from vcr_odom.odometry.run import RunSettings, run_sequence
+        from vcr_odom.odometry.run import run_sequence
 
-        run_sequence(RunSettings(**options))
+        run_sequence(settings)
 
 
 def attempts(folder: Path) -> list[tuple[Path, dict[str, Any]]]:
@@ -124,8 +179,11 @@ def attempts(folder: Path) -> list[tuple[Path, dict[str, Any]]]:
 
 def read_row(cell: Cell, suite_folder: Path) -> dict[str, Any]:
     """The cell's row from its folder: the complete attempt if there is one, else the newest; ``failed``
-    where the last attempt failed, ``pending`` where none ran."""
+    where the last attempt failed, ``pending`` where none ran. Only attempts run with the cell's
+    settings (its digest) and, if complete, with a ``metrics.json`` that parses, count; where others
+    exist, a ``pending`` row's reason says why they do not (the cell is to be rerun)."""
     folder = cell_folder(suite_folder, cell)
+    digest = cell_digest(cell)
     row: dict[str, Any] = {
         "dataset": cell.dataset.name,
         "method": cell.method,
@@ -142,10 +200,19 @@ def read_row(cell: Cell, suite_folder: Path) -> dict[str, Any]:
         "fps": None,
         "folder": None,
         "reason": "",
+        "digest": digest,
     }
-    found = attempts(folder)
+    found, set_aside = [], []
+    for path, marker in attempts(folder):
+        why = _not_current(cell, path, marker)
+        if why is None:
+            found.append((path, marker))
+        else:
+            set_aside.append(f"{path.name}: {why}")
     complete = [item for item in found if item[1]["status"] == "complete"]
     chosen = complete[0] if complete else (found[-1] if found else None)
+    if chosen is None and set_aside:
+        row["reason"] = f"rerun: {set_aside[-1]}"
     if chosen is not None:
         path, marker = chosen
         row |= {
@@ -158,14 +225,53 @@ def read_row(cell: Cell, suite_folder: Path) -> dict[str, Any]:
         }
     failure = folder / FAILURE_FILE
     if not complete and failure.is_file():
-        row |= {"status": "failed", "reason": _failure_reason(failure)}
+        reason = _failure_reason(failure, digest)
+        if reason is not None:
+            row |= {"status": "failed", "reason": reason}
     return row
 
 
-def _failure_reason(path: Path) -> str:
+def _not_current(cell: Cell, path: Path, marker: dict[str, Any]) -> str | None:
+    """Why an attempt does not count for the cell now (None: it does)."""
+    settings = attempt_settings(path)
+    if settings is None:
+        return f"its {CONFIG_FILE} does not parse, so what it ran is unknown"
+    expected = expected_settings(cell)
+    if settings_digest(settings) != settings_digest(expected):
+        return f"run with other settings ({_differences(settings, expected)})"
+    if marker["status"] == "complete":
+        metrics = path / "metrics.json"
+        try:
+            parsed = json.loads(metrics.read_text(encoding="utf-8"))
+        except (OSError, ValueError) as error:
+            return f"its metrics.json does not parse ({type(error).__name__})"
+        if not isinstance(parsed, dict):
+            return "its metrics.json does not parse (not a JSON object)"
+    return None
+
+
+def _differences(before: dict[str, Any], now: dict[str, Any], prefix: str = "") -> str:
+    """``consult: 'on-doubt' -> 'every-frame'`` for each setting that differs (the first three)."""
+    changes = []
+    for key in sorted(set(before) | set(now)):
+        old, new = before.get(key), now.get(key)
+        if isinstance(old, dict) and isinstance(new, dict):
+            inner = _differences(old, new, f"{prefix}{key}.")
+            changes += [inner] if inner else []
+        elif old != new:
+            changes.append(f"{prefix}{key}: {old!r} -> {new!r}")
+    return ", ".join(changes[:3]) + (", ..." if len(changes) > 3 else "")
+
+
+def _failure_reason(path: Path, digest: str) -> str | None:
+    """The recorded failure's reason; None where it was a failure of other settings (a suite since
+    edited). A failure.json written before digests were recorded applies."""
     try:
-        return str(json.loads(path.read_text(encoding="utf-8"))["reason"])
-    except (OSError, ValueError, KeyError, TypeError):
+        failure = json.loads(path.read_text(encoding="utf-8"))
+        if failure.get("digest", digest) != digest:
+            return None
+        return str(failure["reason"])
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return f"failed ({path} unreadable)"
 
 
