@@ -51,21 +51,26 @@ Relative paths are taken from the suite file's folder."""
 def benchmark(suite_file: Path, out: Path | None, jobs: int, ray_address: str | None) -> None:
     """Run a benchmark suite: every dataset x method x stride as `run` (or `map`) would, then
     summary.json, summary.md (per dataset, the mean over datasets and the pooled devkit drift) and plots."""
-    from vcr_odom.suite.suite import plan, run_suite
+    from vcr_odom.suite.suite import planned, run_plan
 
     folder = out or Path("results") / f"benchmark_{suite_file.stem}"
-    _, cells, todo = plan(suite_file, folder)
-    if len(todo) < len(cells):
-        console.print(f"{len(cells) - len(todo)} of {len(cells)} cells complete in {folder}: skipped")
-    with Progress(*bar_columns("last"), console=console) as progress:
-        task = progress.add_task("cells", total=len(todo), last="")
+    with planned(suite_file, folder, ray=ray_address) as plan:
+        cells, todo = plan.cells, plan.todo
+        if len(todo) < len(cells):
+            console.print(f"{len(cells) - len(todo)} of {len(cells)} cells complete in {folder}: skipped")
+        for key, reason in plan.reruns.items():
+            console.print(f"{key}: {reason}", highlight=False)
+        with Progress(*bar_columns("last"), console=console) as progress:
+            task = progress.add_task("cells", total=len(todo), last="")
 
-        def on_cell(cell: object, row: dict[str, object]) -> None:
-            progress.update(
-                task, advance=1, last=f"{row['dataset']} {row['method']} x{row['stride']}: {row['status']}"
-            )
+            def on_cell(cell: object, row: dict[str, object]) -> None:
+                progress.update(
+                    task,
+                    advance=1,
+                    last=f"{row['dataset']} {row['method']} x{row['stride']}: {row['status']}",
+                )
 
-        outcome = run_suite(suite_file, folder, jobs=jobs, ray=ray_address, on_cell=on_cell)
+            outcome = run_plan(plan, jobs=jobs, ray=ray_address, on_cell=on_cell)
     console.print(summary_table(outcome.rows))
     failed = [row for row in outcome.rows if row["status"] == "failed"]
     console.print(
