@@ -36,7 +36,7 @@ from vcr_odom.metrics import EvaluationReport, evaluate
 from vcr_odom.odometry.chain import Odometry
 from vcr_odom.odometry.loop import OdometryRun, run_odometry
 from vcr_odom.odometry.outputs import Checkpoints, ground_truth_for, run_summary, save_trajectory
-from vcr_odom.odometry.run import ProgressFactory, RunSettings, method_for
+from vcr_odom.odometry.run import FrameHook, ProgressFactory, RunSettings, method_for
 from vcr_odom.plots import plot_trajectories
 from vcr_odom.registration.base import SequentialOdometry
 from vcr_odom.registration.vcr import VcrRegistrar
@@ -90,7 +90,9 @@ class MapOutcome:
         )
 
 
-def map_sequence(settings: MapSettings, progress: ProgressFactory | None = None) -> MapOutcome:
+def map_sequence(
+    settings: MapSettings, progress: ProgressFactory | None = None, on_frame: FrameHook | None = None
+) -> MapOutcome:
     """Check everything, build the odometry and the loop network, and map into a new result folder."""
     check_output_folder(settings.results_dir, "--results-dir")
     sequence = settings.selection.open()
@@ -112,6 +114,7 @@ def map_sequence(settings: MapSettings, progress: ProgressFactory | None = None)
         LoopSettings(**{k: getattr(settings, k) for k in LoopSettings.model_fields}),
         progress=progress,
         on_saved=lambda: point_latest_at(settings.results_dir, folder),
+        hook=on_frame,
     )
 
 
@@ -125,6 +128,7 @@ def map_and_save(
     *,
     progress: ProgressFactory | None = None,
     on_saved: Callable[[], Any] | None = None,
+    hook: FrameHook | None = None,
 ) -> MapOutcome:
     """Run the odometry with a node recorder, close loops, optimise and publish ``folder``'s unit
     (see the module doc); ``folder`` is None in the outcome where nothing was kept."""
@@ -140,6 +144,8 @@ def map_and_save(
                 checkpoints(index, pose)
                 recorder(index, pose, points)
                 advance(index, pose)
+                if hook is not None:
+                    hook(index, pose, points, getattr(odometry, "last_info", {}))
 
             run = run_odometry(sequence, odometry, indices, on_frame=on_frame)
         phase.seconds["odometry"] = run.wall_seconds

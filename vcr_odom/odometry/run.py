@@ -8,7 +8,7 @@ that cannot start leaves no folder behind; one that stops part-way leaves a fold
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass
 from pathlib import Path
@@ -47,6 +47,9 @@ from vcr_odom.settings import Settings
 Progress = Callable[[int, Transform], None]
 ProgressFactory = Callable[[str, int], AbstractContextManager[Progress]]
 """``factory(title, total)`` -> a context manager yielding the per-frame callback of a progress display."""
+FrameHook = Callable[[int, Transform, Points, Mapping[str, Any]], None]
+"""``hook(index, pose, points, info)`` once per frame as the odometry placed it (a live 3-D view):
+``info`` is the odometry's ``last_info`` then, the frame's own except within a GPU batch (the batch's last)."""
 
 
 class RunSettings(Settings):
@@ -134,7 +137,9 @@ def method_for(settings: RunSettings) -> Odometry | SequentialOdometry:
     )
 
 
-def run_sequence(settings: RunSettings, progress: ProgressFactory | None = None) -> RunOutcome:
+def run_sequence(
+    settings: RunSettings, progress: ProgressFactory | None = None, on_frame: FrameHook | None = None
+) -> RunOutcome:
     """Check everything, build the method, run it over the selected frames and write the result folder."""
     check_output_folder(settings.results_dir, "--results-dir")
     if settings.save_map is not None:
@@ -163,6 +168,7 @@ def run_sequence(settings: RunSettings, progress: ProgressFactory | None = None)
                 progress=advance,
                 voxel_map=voxel_map,
                 on_saved=lambda: point_latest_at(settings.results_dir, folder),
+                hook=on_frame,
             )
     except BaseException as error:
         if not holds_trajectory(folder):  # failed before its first frame: nothing worth keeping
@@ -189,6 +195,7 @@ def run_and_save(
     plot_title: str = "",
     voxel_map: VoxelMap | None = None,
     on_saved: Callable[[], Any] | None = None,
+    hook: FrameHook | None = None,
 ) -> tuple[OdometryRun, EvaluationReport | None]:
     """Run one method, publish its trajectory, metrics and plot into ``folder`` as one unit.
 
@@ -208,6 +215,8 @@ def run_and_save(
             voxel_map.add(points, pose)
         if progress is not None:
             progress(index, pose)
+        if hook is not None:
+            hook(index, pose, points, getattr(method, "last_info", {}))
 
     try:
         run = run_odometry(sequence, method, frame_indices, on_frame=on_frame)
