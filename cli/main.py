@@ -58,6 +58,7 @@ def _group() -> click.Group:
     from vcr_odom.cli.synth import synth
     from vcr_odom.cli.train import cache as cache_command
     from vcr_odom.cli.train import pretrain_command, train_command
+    from vcr_odom.cli.view import view
 
     @click.group(
         cls=FriendlyGroup, context_settings={"help_option_names": ["-h", "--help"]}, epilog=EXIT_CODES_HELP
@@ -73,6 +74,7 @@ def _group() -> click.Group:
         run,
         map_command,
         evaluate,
+        view,
         compare,
         benchmark,
         synth,

@@ -24,6 +24,7 @@ from vcr_odom.cli.progress import (
 )
 from vcr_odom.cli.run import reject_unused_options, why_unscored
 from vcr_odom.cli.tables import _f, ate_cell
+from vcr_odom.cli.view import finish_live_view, open_live_view, pop_live_options, visualize_options
 from vcr_odom.data.selection import FrameSelection
 from vcr_odom.loops.settings import LoopSettings
 from vcr_odom.map_command import MapOutcome, MapSettings, map_sequence
@@ -129,6 +130,7 @@ FIELDS = MapSettings.model_fields
 @kiss_polish_options
 @vcr_options
 @results_option
+@visualize_options
 @click.pass_context
 def map_command(ctx: click.Context, selection: FrameSelection, **options: object) -> None:
     """Build a map that closes its loops: odometry, then places revisited, registered by VCR-Net with
@@ -140,6 +142,7 @@ def map_command(ctx: click.Context, selection: FrameSelection, **options: object
     """
     config_file = options.pop("config_file")
     dump = options.pop("dump_config")
+    live_options = pop_live_options(ctx, options)
     from_file = LoopSettings.from_toml(config_file) if config_file is not None else {}
     merged = dict(options)
     for name, value in from_file.items():  # the file's, where the command line left the default
@@ -151,7 +154,8 @@ def map_command(ctx: click.Context, selection: FrameSelection, **options: object
         return
     settings = MapSettings(selection=selection, **merged)
     reject_unused_options(ctx, [settings.method if settings.polish is None else settings.spec])
-    outcome = map_sequence(settings, progress=frame_progress)
+    live = open_live_view(live_options, mapping=True)
+    outcome = map_sequence(settings, progress=frame_progress, on_frame=live)
     if outcome.folder is None:
         exit_interrupted(f"Interrupted ({interrupt_label()}) before the first frame; no result folder kept.")
     if outcome.odometry.interrupted:
@@ -184,6 +188,7 @@ def map_command(ctx: click.Context, selection: FrameSelection, **options: object
         console.print(why_unscored(outcome.sequence.gt_poses is not None, len(outcome.poses)))
     seconds = ", ".join(f"{phase} {value:.1f} s" for phase, value in outcome.seconds.items())
     console.print(f"{len(outcome.poses)} frames ({seconds}); results in {outcome.folder}")
+    finish_live_view(live, outcome)
 
 
 def _scores_table(outcome: MapOutcome) -> Table:
