@@ -4,7 +4,7 @@ PYTHON ?= python3
 BIN := $(VENV)/bin
 export PYTHON VENV
 
-.PHONY: setup demo test test-all lint format bench tables clean
+.PHONY: setup demo test test-all lint format bench tables view-picture clean
 
 setup:
 	@bash scripts/setup.sh
@@ -29,6 +29,11 @@ format: setup
 ## Rerun the benchmarks behind the generated tables of docs/benchmarks.md and docs/scaling.md (hours on 2 cores).
 tables: setup
 	$(BIN)/python benchmarks/regenerate_tables.py --work runs/tables
+
+## Remake the README's 3-D picture, docs/view.png: a synthetic loop drive mapped, then `vcr-odom view
+## --screenshot` off-screen (no display needed; about 2 minutes on 2 cores).
+view-picture: setup
+	bash scripts/view_picture.sh
 
 clean:
 	rm -rf $(VENV) .pytest_cache .ruff_cache *.egg-info
