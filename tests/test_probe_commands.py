@@ -109,3 +109,100 @@ def test_a_text_file_as_cache_is_not_a_frame_cache_and_no_pickle_advice(tmp_path
     line = assert_fails(result, 1, notes, "not a frame cache made by `vcr-odom cache`")
     assert "pickle" not in line.lower()
     assert not (tmp_path / "run").exists()
+
+
+# -- 10. train --resume from a broken checkpoint -------------------------------------------------------
+
+TRAIN = ("--num-points", "64", "--protocol", "same-scan", "--batch-size", "4", "--device", "cpu")
+"""A training run of seconds: 64 points, same-scan pairs of the 8 cached frames."""
+
+
+@pytest.fixture(scope="module")
+def trained(small_synthetic_root: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """A frame cache and a run folder after one epoch (its last.pt good to resume)."""
+    work = tmp_path_factory.mktemp("trained")
+    cache = work / "cache.npz"
+    built = invoke(
+        "cache", "--data-root", small_synthetic_root, "--seq", "00", "--num-points", "64", "--out", cache
+    )
+    assert built.exit_code == 0, built.output
+    run = work / "run"
+    first = invoke("train", "--cache", cache, *TRAIN, "--epochs", "1", "--out", run)
+    assert first.exit_code == 0, first.output
+    return cache, run
+
+
+def _first_float(tensors: dict) -> str:
+    return next(name for name, tensor in tensors.items() if tensor.is_floating_point())
+
+
+def _nan_in_model(state: dict) -> dict:
+    state["model"][_first_float(state["model"])].view(-1)[0] = float("nan")
+    return state
+
+
+def _model_tensor_dropped(state: dict) -> dict:
+    del state["model"][_first_float(state["model"])]
+    return state
+
+
+def _optimiser_groups_emptied(state: dict) -> dict:
+    state["optimiser"]["param_groups"] = []
+    return state
+
+
+@pytest.mark.parametrize(
+    ("breakage", "said"),
+    [
+        (lambda state: {"version": 1}, "it has no 'task'"),
+        (_model_tensor_dropped, "missing"),
+        (_optimiser_groups_emptied, "parameter group"),
+        (_nan_in_model, "NaN"),
+    ],
+    ids=["version-only", "tensor-missing", "groups-emptied", "nan"],
+)
+def test_train_resume_from_a_broken_checkpoint_is_one_line_naming_it(
+    trained: tuple[Path, Path], tmp_path: Path, breakage: object, said: str
+) -> None:
+    import torch
+
+    cache, good = trained
+    run = tmp_path / "run"
+    shutil.copytree(good, run)
+    state = torch.load(run / "last.pt", weights_only=False)
+    torch.save(breakage(state), run / "last.pt")  # type: ignore[operator]
+    before = contents(run)
+    result = invoke("train", "--cache", cache, *TRAIN, "--epochs", "2", "--out", run, "--resume")
+    assert_fails(result, 1, run / "last.pt", said)
+    assert contents(run) == before  # nothing trained, nothing overwritten
+
+
+# -- 11. train / pretrain --out where nothing can be written ----------------------------------------
+
+
+@pytest.mark.parametrize("command", ["train", "pretrain", "cache"])
+def test_training_refuses_an_out_it_cannot_write_before_any_work(
+    small_synthetic_root: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, command: str
+) -> None:
+    """A read-only mount, as os.access reports it (the tests may run as root, for whom a chmod is no
+    bar): refused in one line naming --out, before the frames are pre-processed."""
+    import vcr_odom.training.commands
+
+    mount = tmp_path / "mount"
+    mount.mkdir()
+    real_access = os.access
+
+    def read_only(path: object, mode: int, *args: object, **kwargs: object) -> bool:
+        inside = Path(os.fspath(path)).absolute().is_relative_to(mount)  # type: ignore[arg-type]
+        return False if inside and mode & os.W_OK else real_access(path, mode, *args, **kwargs)  # type: ignore[arg-type]
+
+    def no_work(*_args: object, **_kwargs: object) -> None:
+        raise AssertionError("the frames were pre-processed before --out was checked")
+
+    monkeypatch.setattr(os, "access", read_only)
+    monkeypatch.setattr(vcr_odom.training.commands, "sequence_caches", no_work)
+    out = mount / ("cache.npz" if command == "cache" else "run")
+    options = ("--num-points", "64") if command == "cache" else TRAIN
+    result = invoke(command, "--data-root", small_synthetic_root, "--seq", "00", *options, "--out", out)
+    assert_fails(result, 2, "--out", out, "not writable")
+    assert list(mount.iterdir()) == []

@@ -9,6 +9,7 @@ shipped weights are safetensors (``vcr_odom.model.weights``).
 from __future__ import annotations
 
 import io
+import numbers
 from pathlib import Path
 from typing import Any
 
@@ -42,8 +43,9 @@ its forward pass halfway. The point count and the crop shape the training caches
 
 def load_checkpoint(path: Path, task: str, model_config: VcrConfig) -> dict[str, Any]:
     """The checkpoint to resume from, checked to belong to the same task and model configuration
-    (apart from :data:`RESUMED_AS_STARTED`); ``state["model_config"]`` is the configuration to go on
-    with, as a :class:`VcrConfig`."""
+    (apart from :data:`RESUMED_AS_STARTED`) and validated whole (every field, the model's tensor names
+    and shapes, no NaN): a broken file is one DataError naming it and what is wrong, never a traceback
+    from the resume. ``state["model_config"]`` is the configuration to go on with, as a :class:`VcrConfig`."""
     if not path.is_file():
         raise DataError(f"cannot resume: no checkpoint at {path} (run once without --resume first)")
     try:
@@ -61,6 +63,7 @@ def load_checkpoint(path: Path, task: str, model_config: VcrConfig) -> dict[str,
         raise DataError(f"{path}: not a readable checkpoint (corrupt or truncated?): {error}") from error
     if not isinstance(state, dict) or state.get("version") != CHECKPOINT_VERSION:
         raise DataError(f"{path}: not a vcr-odom checkpoint of version {CHECKPOINT_VERSION}")
+    _check_fields(path, state)
     if state["task"] != task:
         raise ConfigError(f"{path} is a {state['task']!r} checkpoint; cannot resume it with {task!r}")
     try:  # read like a weight file's: a field older than the checkpoint takes its legacy value
@@ -72,5 +75,93 @@ def load_checkpoint(path: Path, task: str, model_config: VcrConfig) -> dict[str,
     if differing:
         diffs = [f"{k}: checkpoint {found[k]!r}, requested {wanted[k]!r}" for k in differing]
         raise ConfigError(f"{path}: model configuration differs from the checkpoint ({'; '.join(diffs)})")
+    _check_model(path, state["model"], stored)
+    _check_finite(path, state)
     state["model_config"] = stored
     return state
+
+
+FIELDS: dict[str, type | tuple[type, ...]] = {
+    "task": str,
+    "epoch": int,
+    "model": dict,
+    "optimiser": dict,
+    "scheduler": dict,
+    "scaler": dict,
+    "rng": list,
+    "best_score": numbers.Real,
+    "best_epoch": int,
+    "history": list,
+    "model_config": dict,
+}
+"""What :func:`load_checkpoint` needs in ``last.pt`` (as :func:`~vcr_odom.training.loop` writes it), by type."""
+
+
+def _check_fields(path: Path, state: dict[str, Any]) -> None:
+    """A DataError naming the first field that is missing or of the wrong kind: a checkpoint cut down
+    or edited by hand must fail in one line, not as a KeyError deep in the resume."""
+    for name, kind in FIELDS.items():
+        if name not in state:
+            raise DataError(f"{path}: not a complete checkpoint: it has no {name!r}")
+        if not isinstance(state[name], kind) or isinstance(state[name], bool):
+            raise DataError(f"{path}: {name!r} is a {type(state[name]).__name__}, not what last.pt holds")
+    optimiser = state["optimiser"]
+    if not isinstance(optimiser.get("param_groups"), list) or not isinstance(optimiser.get("state"), dict):
+        raise DataError(f"{path}: the optimiser state has no 'param_groups' list or 'state' dict")
+    if not state["rng"] or not all(isinstance(r, dict) for r in state["rng"]):
+        raise DataError(f"{path}: 'rng' holds no random-number-generator states")
+
+
+def _check_model(path: Path, tensors: dict[str, Any], config: VcrConfig) -> None:
+    """The stored parameters against the network ``config`` builds: the same names and shapes."""
+    from vcr_odom.model.network import VCRNet  # the network is only built to be compared against
+
+    expected = {name: tuple(t.shape) for name, t in VCRNet(config).state_dict().items()}
+    missing = sorted(set(expected) - set(tensors))
+    unexpected = sorted(set(tensors) - set(expected))
+    if missing or unexpected:
+        parts = [
+            f"missing {', '.join(missing[:3])}" if missing else "",
+            f"unexpected {', '.join(unexpected[:3])}" if unexpected else "",
+        ]
+        raise DataError(
+            f"{path}: the model's tensors are not the network's ({'; '.join(p for p in parts if p)})"
+        )
+    for name, shape in expected.items():
+        found = tensors[name]
+        if not isinstance(found, torch.Tensor) or tuple(found.shape) != shape:
+            got = tuple(found.shape) if isinstance(found, torch.Tensor) else type(found).__name__
+            raise DataError(f"{path}: model tensor {name!r} is {got}, the network's is {shape}")
+
+
+def _check_finite(path: Path, state: dict[str, Any]) -> None:
+    """NaN or infinite values in the model or the optimiser's moments: a run that diverged before it
+    was saved, which would fail later in the pose solve (an SVD of NaN) with no word of the file."""
+    found = [("model tensor", name, t) for name, t in state["model"].items()]
+    for key, moments in state["optimiser"]["state"].items():
+        if isinstance(moments, dict):
+            found += [("optimiser state", f"{key}.{name}", t) for name, t in moments.items()]
+    for kind, name, tensor in found:
+        if (
+            isinstance(tensor, torch.Tensor)
+            and tensor.is_floating_point()
+            and not torch.isfinite(tensor).all()
+        ):
+            raise DataError(
+                f"{path}: {kind} {name!r} holds NaN or infinite values (the run diverged before this "
+                "checkpoint); start again, or resume from an earlier copy of last.pt"
+            )
+
+
+def check_resumable(path: Path, state: dict[str, Any], optimiser: torch.optim.Optimizer) -> None:
+    """The stored optimiser state against ``optimiser`` (the one the run builds): the same parameter
+    groups of the same sizes, which torch would otherwise refuse with a ValueError traceback."""
+    stored = state["optimiser"]["param_groups"]
+    groups = optimiser.param_groups
+    sizes = [len(g.get("params", ())) if isinstance(g, dict) else -1 for g in stored]
+    wanted = [len(g["params"]) for g in groups]
+    if sizes != wanted:
+        raise DataError(
+            f"{path}: the optimiser state holds {len(sizes)} parameter group(s) of {sizes} parameters, "
+            f"the run's optimiser {len(wanted)} of {wanted} (not this task's checkpoint, or edited)"
+        )

@@ -22,7 +22,9 @@ from pydantic import Field, field_validator, model_validator
 from vcr_odom.data.frame_cache import FrameCache, build_frame_cache
 from vcr_odom.errors import ConfigError
 from vcr_odom.model.config import VcrConfig
+from vcr_odom.results import check_output_file, check_output_folder
 from vcr_odom.settings import Settings
+from vcr_odom.training.checkpoint import load_checkpoint
 from vcr_odom.training.config import Progress, TrainConfig, TrainResult
 from vcr_odom.training.datasets import PairDatasets, train_val_datasets
 from vcr_odom.training.loop import pretrain, train
@@ -144,6 +146,8 @@ def cache_sequence(
     (a ``.npz``, atomically) when given."""
     if len(source.seqs) != 1:
         raise ConfigError("give exactly one --seq per cache file")
+    if out is not None:  # before the pre-processing: a folder it cannot write fails first
+        check_output_file(out, "--out")
     (cache,) = sequence_caches(source, model_config, progress)
     if out is not None:
         cache.save(out)
@@ -191,5 +195,8 @@ def fit_on(
     """The ``train`` and ``pretrain`` commands: that task's loop on the pairs of ``data``."""
     if task not in TRAINING_TASKS:
         raise ConfigError(f"task must be one of {', '.join(TRAINING_TASKS)}; got {task!r}")
+    check_output_folder(config.out, "--out")  # before the pre-processing, as every command does
+    if resume:  # a missing or broken checkpoint, too, is found before the pre-processing
+        load_checkpoint(config.out / "last.pt", task, model_config)
     train_set, val_set = training_sets(data, model_config, config.seed, frames_progress)
     return TRAINING_TASKS[task](model_config, train_set, val_set, config, resume, progress)

@@ -39,7 +39,7 @@ from vcr_odom.model.config import VcrConfig
 from vcr_odom.model.network import VCRNet
 from vcr_odom.model.weights import load_weights, save_weights
 from vcr_odom.results import provenance, write_json
-from vcr_odom.training.checkpoint import load_checkpoint, save_checkpoint
+from vcr_odom.training.checkpoint import check_resumable, load_checkpoint, save_checkpoint
 from vcr_odom.training.config import Progress, ProgressEvent, TrainConfig, TrainResult
 from vcr_odom.training.runtime import (
     DistContext,
@@ -187,9 +187,15 @@ def _start(
         amp_dtype=amp_dtype,
     )
     if resume:
-        state = load_checkpoint(config.out / "last.pt", task.name, model_config)
+        path = config.out / "last.pt"
+        state = load_checkpoint(path, task.name, model_config)
+        check_resumable(path, state, optimiser)
         session.model_config = session.net.config = state["model_config"]
-        _restore(session, state)
+        try:
+            _restore(session, state)
+        except (KeyError, IndexError, TypeError, ValueError, RuntimeError) as error:  # what the checks
+            reason = (str(error).splitlines() or [type(error).__name__])[0]  # above did not foresee
+            raise DataError(f"{path}: cannot resume from this checkpoint: {reason}") from error
     elif ctx.main:
         config.out.mkdir(parents=True, exist_ok=True)
         record = {"task": task.name, "model": model_config.to_dict(), "train": config.to_dict()}
