@@ -32,7 +32,7 @@ def parse_size(ctx: click.Context, param: click.Parameter, value: str) -> tuple[
 def screenshot_option(function: click.decorators.FC) -> click.decorators.FC:
     """``--screenshot FILE.png`` and ``--size``: render off-screen (no display needed) and write it."""
     function = click.option(
-        "--size", default="1280x720", show_default=True, callback=parse_size, help=SIZE_HELP
+        "--size", metavar="WxH", default="1280x720", show_default=True, callback=parse_size, help=SIZE_HELP
     )(function)
     return click.option(
         "--screenshot",
@@ -76,7 +76,7 @@ def view(
     size: tuple[int, int],
 ) -> None:
     """Show a result folder of run or map in 3-D: the estimated and ground-truth trajectories, the
-    odometry's beside a map's, map.ply, accepted loops as lines between their frames (--rejected: the
+    odometry's beside a map's, map.ply, accepted loops as arcs between their frames (--rejected: the
     rejected candidates too, coloured by why) and the flagged frames.
 
     Needs the viz extra (pip install 'vcr-odom[viz]'): a window where there is a display, or
