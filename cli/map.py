@@ -22,7 +22,7 @@ from vcr_odom.cli.progress import (
     frame_progress,
     interrupt_label,
 )
-from vcr_odom.cli.run import reject_unused_options, why_unscored
+from vcr_odom.cli.run import print_flagged_frames, reject_unused_options, why_unscored
 from vcr_odom.cli.tables import _f, ate_cell
 from vcr_odom.cli.view import finish_live_view, open_live_view, pop_live_options, visualize_options
 from vcr_odom.data.selection import FrameSelection
@@ -164,6 +164,7 @@ def map_command(ctx: click.Context, selection: FrameSelection, **options: object
             f"{len(outcome.odometry.frame_indices)} frames are kept in {outcome.folder} "
             "(result.json: partial)."
         )
+    print_flagged_frames(outcome.odometry)
     accepted = [d for d in outcome.decisions if d.accepted]
     console.print(
         f"{len(outcome.decisions)} loop candidate(s), {len(accepted)} accepted; "

@@ -28,6 +28,7 @@ from vcr_odom.data.selection import FrameSelection
 from vcr_odom.errors import ConfigError
 from vcr_odom.evaluation.rows import parse_row_spec
 from vcr_odom.odometry.factory import DEFAULT_GLOBAL_POLISH, GLOBAL_METHODS, parse_method_spec
+from vcr_odom.odometry.loop import OdometryRun
 from vcr_odom.odometry.polish import POLISHES
 from vcr_odom.odometry.run import RunSettings, run_sequence
 from vcr_odom.registration import METHOD_NAMES
@@ -149,18 +150,7 @@ def run(ctx: click.Context, selection: FrameSelection, **options: object) -> Non
         console.print(
             f"map of {len(outcome.voxel_map)} points ({settings.map_voxel:g} m voxels) written to {settings.save_map}"
         )
-    if result.flagged_frames:
-        console.print(
-            f"[yellow]{len(result.flagged_frames)} frame(s) flagged (an implausible or failed estimate: "
-            f"replaced by the previous motion, or kept where the frame rate is assumed): "
-            f"{result.flagged_frames[:20]}; reasons in metrics.json"
-        )
-    if result.single_plane_frames:
-        console.print(
-            f"[yellow]{len(result.single_plane_frames)} frame(s) where the scan is almost one plane (the "
-            "road, a wall): motion along it cannot be measured there, so those poses may slide: "
-            f"{result.single_plane_frames[:20]}; single_plane_frames in metrics.json"
-        )
+    print_flagged_frames(result)
     if report is not None:
         title = f"{settings.spec} on {outcome.sequence.name} (stride {selection.stride})"
         console.print(report_table(report, title=title))
@@ -175,6 +165,23 @@ def run(ctx: click.Context, selection: FrameSelection, **options: object) -> Non
             f"result is kept in {outcome.folder} (result.json: partial)."
         )
     finish_live_view(live, outcome)
+
+
+def print_flagged_frames(result: OdometryRun) -> None:
+    """The frames whose estimate was replaced or is in doubt, as ``run`` and ``map`` print them: a pose
+    that was not measured must not pass for one that was."""
+    if result.flagged_frames:
+        console.print(
+            f"[yellow]{len(result.flagged_frames)} frame(s) flagged (an implausible or failed estimate: "
+            f"replaced by the previous motion, or kept where the frame rate is assumed): "
+            f"{result.flagged_frames[:20]}; reasons in metrics.json"
+        )
+    if result.single_plane_frames:
+        console.print(
+            f"[yellow]{len(result.single_plane_frames)} frame(s) where the scan is almost one plane (the "
+            "road, a wall): motion along it cannot be measured there, so those poses may slide: "
+            f"{result.single_plane_frames[:20]}; single_plane_frames in metrics.json"
+        )
 
 
 def why_unscored(has_ground_truth: bool, frames: int) -> str:

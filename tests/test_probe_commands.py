@@ -5,10 +5,12 @@ subprocess, that it has exited."""
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 from click.testing import CliRunner, Result
 from conftest import SMALL_SYNTHETIC_FRAMES
@@ -206,3 +208,56 @@ def test_training_refuses_an_out_it_cannot_write_before_any_work(
     result = invoke(command, "--data-root", small_synthetic_root, "--seq", "00", *options, "--out", out)
     assert_fails(result, 2, "--out", out, "not writable")
     assert list(mount.iterdir()) == []
+
+
+# -- 5. map on degenerate frames: the same map every run, the frames named ------------------------
+
+
+DEGENERATE_FRAMES = 6
+
+
+def degenerate_folder(root: Path, where: Path, copies: int) -> tuple[Path, Path]:
+    """``root``'s first frames as a plain folder, frame 3 one point (``copies`` times); their poses."""
+    where.mkdir()
+    for index in range(DEGENERATE_FRAMES):
+        shutil.copy(root / "sequences" / "00" / "velodyne" / f"{index:06d}.bin", where / f"{index:06d}.bin")
+    scan = np.fromfile(where / "000003.bin", dtype=np.float32).reshape(-1, 4)
+    np.repeat(scan[:1], copies, axis=0).tofile(where / "000003.bin")
+    poses = where.parent / "poses.txt"
+    lines = (root / "poses" / "00.txt").read_text().splitlines()[:DEGENERATE_FRAMES]
+    poses.write_text("\n".join(lines) + "\n")
+    return where, poses
+
+
+def mapped(folder: Path, poses: Path, root: Path, results: Path) -> tuple[Result, Path]:
+    result = invoke(
+        "map", "--folder", folder, "--poses", poses, "--calib", root / "sequences" / "00" / "calib.txt",
+        "--results-dir", results,
+    )  # fmt: skip
+    return result, (results / "latest").resolve()
+
+
+@pytest.mark.parametrize("copies", [1, 5000], ids=["one-point", "5000-copies"])
+def test_map_places_a_frame_of_one_point_by_its_motion_model_every_run_and_names_it(
+    small_synthetic_root: Path, tmp_path: Path, copies: int
+) -> None:
+    folder, poses = degenerate_folder(small_synthetic_root, tmp_path / "scans", copies)
+    runs = [
+        mapped(folder, poses, small_synthetic_root, tmp_path / f"results{k}")
+        for k in range(2 if copies == 1 else 1)
+    ]
+    odometries = []
+    for result, saved in runs:
+        assert result.exit_code == 0, result.output
+        text = " ".join(result.output.split())
+        assert "frame(s) flagged" in text and "[3," in text, result.output  # as run prints them
+        metrics = json.loads((saved / "metrics.json").read_text())["run"]
+        assert metrics["flagged_reasons"]["3"] == "too few points"
+        odometry = np.loadtxt(saved / "odometry_kitti.txt").reshape(-1, 3, 4)
+        poses = np.tile(np.eye(4), (len(odometry), 1, 1))
+        poses[:, :3] = odometry
+        # Not registered: placed by the motion model (the motion from frame 1 to 2, again).
+        np.testing.assert_allclose(poses[3], poses[2] @ np.linalg.inv(poses[1]) @ poses[2], atol=1e-6)
+        odometries.append(poses)
+    for poses in odometries[1:]:
+        np.testing.assert_array_equal(poses, odometries[0])

@@ -29,7 +29,13 @@ from vcr_odom.geometry import Transform, motion_difference, project_to_se3
 from vcr_odom.odometry.guided_kiss import BASIN_DEG, BASIN_M
 from vcr_odom.odometry.limits import InitialGuess, MotionLimits
 from vcr_odom.odometry.polish import Polish, PolishResult, PriorAttempt
-from vcr_odom.registration.base import FAILED_STATUSES, BatchRegistrar, Registrar, RegistrationResult
+from vcr_odom.registration.base import (
+    FAILED_STATUSES,
+    TOO_FEW_POINTS,
+    BatchRegistrar,
+    Registrar,
+    RegistrationResult,
+)
 
 RECENT_PAIRS = 5
 """Pairs whose median estimated speed a new pair's may not depart from implausibly
@@ -93,6 +99,14 @@ class DoubtRule:
     correction_m: float = BASIN_M
     correction_deg: float = BASIN_DEG
     share: float = 0.5
+
+
+def _flag_unregistered(info: dict[str, Any]) -> dict[str, Any]:
+    """A frame the polish could not register (too few points: it kept its start, the previous
+    motion) is flagged as one the registrar could not, so run and map name it and their poses agree."""
+    if info.get("polish_status") == TOO_FEW_POINTS and not info.get("flagged"):
+        info |= {"flagged": True, "reason": TOO_FEW_POINTS}
+    return info
 
 
 class Odometry:
@@ -244,7 +258,8 @@ class Odometry:
         if reason is None:
             polished = self.polish.finish(attempt, frame.polish, previous.polish, None, pose=self._pose)
             self._fits.append(attempt.fit)
-            return polished.motion, polished.info | {"prior_fit": attempt.fit, "global": "not needed"}
+            info = polished.info | {"prior_fit": attempt.fit, "global": "not needed"}
+            return polished.motion, _flag_unregistered(info)
         self._prepare_for_registrar([f for f in (previous, frame) if f.registrar is None])
         result = self.registrar.register(frame.registrar, previous.registrar, None)
         coarse, info = self._checked(result, seconds)
@@ -305,6 +320,7 @@ class Odometry:
         assert self.polish is not None
         change_m, change_deg = motion_difference(coarse, polished.motion)
         info |= polished.info | {"polish_change_m": change_m, "polish_change_deg": change_deg}
+        _flag_unregistered(info)
         self._note_estimate(polished.motion, seconds)
         diverged = self.limits.violation(polished.motion, seconds, self._recent_speed())
         if diverged is None:

@@ -24,6 +24,7 @@ from vcr_odom.errors import ConfigError
 from vcr_odom.geometry import Transform, motion_difference, project_to_se3
 from vcr_odom.odometry.degeneracy import WEAK_AXIS_SHARE, hold_along, weak_axes
 from vcr_odom.odometry.plane_refinement import refine_point_to_plane, registration_normals
+from vcr_odom.registration.base import MIN_REGISTRATION_POINTS
 
 NORMAL_RADIUS_VOXELS = 4.5
 """Surface normals for the weak axes are estimated within this many map voxels: three cells of the
@@ -99,6 +100,12 @@ class KissAttempt:
     weak_axes: np.ndarray
     normals: np.ndarray | None = None
     """Surface normals at ``source`` where the fit is finished point to plane, else None."""
+
+
+MIN_SOURCE_POINTS = MIN_REGISTRATION_POINTS
+"""Fewer registration points than this (a frame of one point, or of 5,000 copies of one) leave
+kiss-icp's solve undetermined, a different pose on every run: such a frame keeps its start, as open3d
+ICP's does (``too few points``)."""
 
 
 class GuidedKissICP(KissICP):
@@ -193,7 +200,10 @@ class GuidedKissICP(KissICP):
 
     def _held_align(self, attempt: KissAttempt, guess: Transform) -> Transform:
         """The registration from ``guess`` (finished point to plane where the attempt has normals),
-        holding its position along the frame's weak axes."""
+        holding its position along the frame's weak axes; ``guess`` itself where the frame has fewer
+        than :data:`MIN_SOURCE_POINTS` (see there)."""
+        if len(attempt.source) < MIN_SOURCE_POINTS:
+            return project_to_se3(guess)
         pose = self._align(attempt.source, guess, attempt.sigma)
         if attempt.normals is not None:
             pose = refine_point_to_plane(

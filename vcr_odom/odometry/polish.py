@@ -21,6 +21,7 @@ from vcr_odom.errors import ConfigError, DataWarning
 from vcr_odom.geometry import Transform, invert
 from vcr_odom.odometry.degeneracy import WEAK_AXIS_SHARE
 from vcr_odom.odometry.guided_kiss import (
+    MIN_SOURCE_POINTS,
     GuidedKissICP,
     KissAttempt,
     KissFrame,
@@ -30,7 +31,7 @@ from vcr_odom.odometry.guided_kiss import (
     within_basin,
 )
 from vcr_odom.odometry.polish_voxel import density_voxel, raw_sparse_scan, with_voxel
-from vcr_odom.registration.base import RegistrationResult
+from vcr_odom.registration.base import TOO_FEW_POINTS, RegistrationResult
 from vcr_odom.registration.kiss import kiss_config, kiss_input
 from vcr_odom.registration.open3d_icp import Open3dIcp
 
@@ -169,6 +170,8 @@ class IcpPolish:
 
 def _icp_result(result: RegistrationResult, start: str) -> PolishResult:
     info = {"polish_fitness": result.fitness, "polish_inlier_rmse": result.inlier_rmse, "polish_start": start}
+    if result.info.get("status") == TOO_FEW_POINTS:  # not registered: its start kept
+        info["polish_status"] = TOO_FEW_POINTS
     return PolishResult(np.asarray(result.transform, dtype=np.float64), info)
 
 
@@ -311,6 +314,8 @@ class KissIcpPolish:
         }
         if self.kiss.last_weak_axes:
             info["weak_axes"] = self.kiss.last_weak_axes
+        if self.kiss.last_source_points < MIN_SOURCE_POINTS:  # not registered: its start kept
+            info["polish_status"] = TOO_FEW_POINTS
         return PolishResult(invert(pose) @ new_pose, info)
 
     def restart(self, frame: KissFrame, pose: Transform, motion: Transform) -> None:

@@ -20,6 +20,10 @@ DEGENERATE = "degenerate correspondences"
 TOO_FEW_POINTS = "too few points"
 FAILED_STATUSES = (DEGENERATE, TOO_FEW_POINTS)
 """``info["status"]`` values that mean the transform is not an estimate: odometry falls back and flags."""
+MIN_REGISTRATION_POINTS = 10
+"""Fewer (distinct, down-sampled) points than this do not determine a 6-DoF motion: one point fixes
+three of the six, and a least-squares solve then returns whatever its rank-deficient system gives (with
+kiss-icp, a different pose on every run). Such a frame is not registered but flagged ``too few points``."""
 
 
 @dataclass

@@ -15,6 +15,7 @@ from kiss_icp.kiss_icp import KissICP
 from vcr_odom.data.base import Points
 from vcr_odom.errors import ConfigError, DataWarning
 from vcr_odom.geometry import Transform
+from vcr_odom.registration.base import MIN_REGISTRATION_POINTS, TOO_FEW_POINTS
 
 
 def threads_from_environment() -> int:
@@ -68,6 +69,19 @@ def kiss_input(points: Points) -> np.ndarray:
     return np.ascontiguousarray(xyz, dtype=np.float64)
 
 
+class _KissICP(KissICP):
+    """kiss-icp's pipeline, except that a frame of fewer than :data:`MIN_REGISTRATION_POINTS`
+    registration points is placed by the motion model, as kiss-icp places an empty frame, instead of
+    by an undetermined solve that differs run to run; ``too_few`` says the last frame was one."""
+
+    too_few: bool = False
+
+    def voxelize(self, iframe: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        source, frame_downsample = super().voxelize(iframe)
+        self.too_few = 0 < len(source) < MIN_REGISTRATION_POINTS
+        return (source[:0] if self.too_few else source), frame_downsample
+
+
 class KissIcpOdometry:
     """``kiss_icp.kiss_icp.KissICP`` fed frame by frame; ``step`` returns the pose in the frame-0 LiDAR frame.
 
@@ -91,11 +105,13 @@ class KissIcpOdometry:
             max_range, min_range, voxel_size, deskew, max_num_threads, convergence_criterion
         )
         self.kitti_correction = kitti_correction
-        self._odometry = KissICP(self.config)
+        self._odometry = _KissICP(self.config)
+        self.last_info: dict[str, object] = {}
 
     def reset(self) -> None:
         """Forget the map and the motion model: the next frame is frame 0 (identity)."""
-        self._odometry = KissICP(self.config)
+        self._odometry = _KissICP(self.config)
+        self.last_info = {}
 
     def step(self, points: Points, timestamp: float = 0.0) -> Transform:
         """Register one raw frame; ``timestamp`` is unused (no per-point times without deskew)."""
@@ -111,4 +127,5 @@ class KissIcpOdometry:
             vector = kiss_icp_pybind._Vector3dVector(frame)
             frame = np.asarray(kiss_icp_pybind._correct_kitti_scan(vector))
         self._odometry.register_frame(frame, np.array([]))
+        self.last_info = {"flagged": True, "reason": TOO_FEW_POINTS} if self._odometry.too_few else {}
         return np.asarray(self._odometry.last_pose, dtype=np.float64).copy()
