@@ -26,6 +26,7 @@ from vcr_odom.cli.run import print_flagged_frames, reject_unused_options, why_un
 from vcr_odom.cli.tables import _f, ate_cell
 from vcr_odom.cli.view import finish_live_view, open_live_view, pop_live_options, visualize_options
 from vcr_odom.data.selection import FrameSelection
+from vcr_odom.evaluation.rows import LOOPS_SUFFIX
 from vcr_odom.loops.settings import LoopSettings
 from vcr_odom.map_command import MapOutcome, MapSettings, map_sequence
 from vcr_odom.odometry.polish import POLISHES
@@ -153,7 +154,8 @@ def map_command(ctx: click.Context, selection: FrameSelection, **options: object
         click.echo(LoopSettings(**chosen).dump_toml(), nl=False)
         return
     settings = MapSettings(selection=selection, **merged)
-    reject_unused_options(ctx, [settings.method if settings.polish is None else settings.spec])
+    spec = settings.method if settings.polish is None else settings.spec
+    reject_unused_options(ctx, [f"{spec}{LOOPS_SUFFIX}" if settings.loops else spec])
     live = open_live_view(live_options, mapping=True)
     outcome = map_sequence(settings, progress=frame_progress, on_frame=live)
     if outcome.folder is None:

@@ -26,7 +26,7 @@ from vcr_odom.cli.tables import report_table
 from vcr_odom.cli.view import finish_live_view, open_live_view, pop_live_options, visualize_options
 from vcr_odom.data.selection import FrameSelection
 from vcr_odom.errors import ConfigError
-from vcr_odom.evaluation.rows import parse_row_spec
+from vcr_odom.evaluation.rows import parse_row_spec, split_loops
 from vcr_odom.odometry.factory import DEFAULT_GLOBAL_POLISH, GLOBAL_METHODS, parse_method_spec
 from vcr_odom.odometry.loop import OdometryRun
 from vcr_odom.odometry.polish import POLISHES
@@ -39,18 +39,28 @@ VCR_ONLY_OPTIONS = {
     "vcr_points": "--vcr-points",
     "device": "--device",
 }
+LOOP_NETWORK_OPTIONS = ("weights", "vcr_points", "device")
+"""The VCR-Net options a mapped row (``map``, a ``+loops`` row) uses whatever its odometry: its loops
+are registered by VCR-Net (:func:`~vcr_odom.loops.pipeline.loop_network`)."""
 
 
 def reject_unused_options(ctx: click.Context, specs: Iterable[str]) -> None:
     """A VCR-Net option given for methods that are not VCR-Net, or ``--consult`` without a polished
-    global method, would be silently ignored: a usage error instead, before any work."""
+    global method, would be silently ignored: a usage error instead, before any work. A mapped spec
+    (``kiss-icp+loops``) takes :data:`LOOP_NETWORK_OPTIONS` for its loop network."""
+    specs = list(specs)
     try:
         parsed = [parse_row_spec(spec) for spec in specs]
     except ConfigError:
         return  # the method itself is the mistake; its own check says so
+    mapped = any(split_loops(spec)[1] for spec in specs)
     unused = []
     if not any(name == "vcr" for name, _ in parsed):
-        unused += [flag for name, flag in VCR_ONLY_OPTIONS.items() if given(ctx, name)]
+        unused += [
+            flag
+            for name, flag in VCR_ONLY_OPTIONS.items()
+            if given(ctx, name) and not (mapped and name in LOOP_NETWORK_OPTIONS)
+        ]
     if given(ctx, "consult") and not any(n in GLOBAL_METHODS and p != "none" for n, p in parsed):
         unused.append("--consult")
     if unused:

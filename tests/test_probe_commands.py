@@ -261,3 +261,36 @@ def test_map_places_a_frame_of_one_point_by_its_motion_model_every_run_and_names
         odometries.append(poses)
     for poses in odometries[1:]:
         np.testing.assert_array_equal(poses, odometries[0])
+
+
+# -- 13. map --method kiss-icp takes the loop network's options ----------------------------------
+
+
+def test_map_with_kiss_icp_passes_the_vcr_options_to_its_loop_network(
+    small_synthetic_root: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import vcr_odom.map_command
+    from vcr_odom.model.weights import default_weights_path
+
+    asked: list[tuple[object, ...]] = []
+    real = vcr_odom.map_command.loop_network
+
+    def recorded(weights: object, device: object, points: object, odometry: object = None) -> object:
+        asked.append((weights, device, points))
+        return real(weights, device, points, odometry)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(vcr_odom.map_command, "loop_network", recorded)
+    weights = default_weights_path("default")
+    result = invoke(
+        "map", "--data-root", small_synthetic_root, "--frames", "0:4", "--method", "kiss-icp",
+        "--device", "cpu", "--weights", weights, "--vcr-points", "256", "--results-dir", tmp_path / "r",
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert asked == [(weights, "cpu", 256)]
+
+    refused = invoke(
+        "map", "--data-root", small_synthetic_root, "--method", "kiss-icp", "--vcr-passes", "2",
+        "--results-dir", tmp_path / "r2",
+    )  # fmt: skip
+    assert_fails(refused, 2, "--vcr-passes")
+    assert not (tmp_path / "r2").exists()
