@@ -26,7 +26,7 @@ lint: setup
 format: setup
 	$(BIN)/ruff format . && $(BIN)/ruff check --fix .
 
-## Rerun the benchmarks behind the generated tables of docs/benchmarks.md and docs/scaling.md (hours on 2 cores).
+## Rerun the benchmarks behind the generated tables of README.md, docs/benchmarks.md and docs/scaling.md (hours on 2 cores).
 tables: setup
 	$(BIN)/python benchmarks/regenerate_tables.py --work runs/tables
 
