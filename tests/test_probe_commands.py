@@ -8,6 +8,10 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -294,3 +298,64 @@ def test_map_with_kiss_icp_passes_the_vcr_options_to_its_loop_network(
     )  # fmt: skip
     assert_fails(refused, 2, "--vcr-passes")
     assert not (tmp_path / "r2").exists()
+
+
+# -- 14. map stopped after its odometry names the folder it kept -----------------------------------
+
+STOP_IN_LOOP_PHASE = """
+import pathlib, sys, time
+from vcr_odom.loops import pipeline
+flag = pathlib.Path(sys.argv.pop(1))
+def close_loops(*args, **kwargs):
+    flag.touch()  # the odometry is done: the signal lands here
+    time.sleep(120)
+pipeline.close_loops = close_loops
+from vcr_odom.cli.main import main
+main()
+"""
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
+def test_map_stopped_after_its_odometry_names_the_partial_folder(
+    small_synthetic_root: Path, tmp_path: Path, signum: int
+) -> None:
+    flag, results = tmp_path / "odometry-done", tmp_path / "results"
+    args = [
+        "map",
+        "--data-root",
+        small_synthetic_root,
+        "--frames",
+        "0:5",
+        "--method",
+        "icp",
+        "--results-dir",
+        results,
+    ]
+    process = subprocess.Popen(
+        [sys.executable, "-c", STOP_IN_LOOP_PHASE, flag, *map(str, args)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "OMP_NUM_THREADS": "1", "COLUMNS": "300"},
+    )
+    try:
+        deadline = time.monotonic() + 120
+        while not flag.exists():
+            assert process.poll() is None, process.communicate()
+            assert time.monotonic() < deadline, "the odometry never finished"
+            time.sleep(0.05)
+        process.send_signal(signum)
+        out, err = process.communicate(timeout=60)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+    assert process.returncode == 128 + signum, (out, err)
+    (folder,) = [p for p in results.iterdir() if p.name.startswith("20")]
+    said = " ".join(err.split())
+    label = "Ctrl-C" if signum == signal.SIGINT else "SIGTERM"
+    assert f"Interrupted ({label})" in said and str(folder) in said and "5 frames" in said, err
+    assert "Traceback" not in out + err
+    marker = json.loads((folder / "result.json").read_text())
+    assert marker["status"] == "partial" and marker["frames_done"] == 5
+    assert len(np.loadtxt(folder / "trajectory_kitti.txt")) == 5

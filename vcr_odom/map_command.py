@@ -45,6 +45,7 @@ from vcr_odom.results import (
     create_result_folder,
     holds_trajectory,
     interruption_reason,
+    note_kept,
     point_latest_at,
     remove_result_folder,
     write_json,
@@ -166,6 +167,13 @@ def map_and_save(
         checkpoints.save(f"{interruption_reason(error)} (after {checkpoints.frames_done} odometry frames)")
         if not holds_trajectory(folder):
             remove_result_folder(folder)
+            note_kept(error, "no result folder was kept")
+        else:  # stopped in the loop phase or the map: the odometry is there, and where must be said
+            note_kept(
+                error,
+                f"the odometry's {checkpoints.frames_done} frames are kept in {folder} "
+                "(result.json: partial; no loop closure)",
+            )
         raise
     gt = ground_truth_for(sequence, run.frame_indices)
     report = evaluate(poses, gt) if gt is not None and len(poses) >= 2 else None
