@@ -5,6 +5,7 @@ subprocess, that it has exited."""
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import shutil
@@ -298,6 +299,43 @@ def test_map_with_kiss_icp_passes_the_vcr_options_to_its_loop_network(
     )  # fmt: skip
     assert_fails(refused, 2, "--vcr-passes")
     assert not (tmp_path / "r2").exists()
+
+
+# -- 3. map on a full disk keeps the small files ------------------------------------------------------
+
+
+def test_map_on_a_full_disk_keeps_the_small_files_and_names_the_map(
+    small_synthetic_root: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import open3d as o3d
+
+    def full_disk(filename: str, *_args: object, **_kwargs: object) -> bool:
+        Path(filename).write_bytes(b"ply\n")  # a disk fills up part-way
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), filename)
+
+    monkeypatch.setattr(o3d.io, "write_point_cloud", full_disk)
+    results = tmp_path / "results"
+    result = invoke(
+        "map", "--data-root", small_synthetic_root, "--frames", "0:5", "--method", "icp",
+        "--results-dir", results,
+    )  # fmt: skip
+    (folder,) = [p for p in results.iterdir() if p.name.startswith("20")]
+    line = assert_fails(result, 1, folder, "map.ply", os.strerror(errno.ENOSPC))
+    assert "loops.json" in line  # what was kept is said
+    for name in (
+        "trajectory_kitti.txt",
+        "odometry_kitti.txt",
+        "odometry_tum.txt",
+        "loops.json",
+        "metrics.json",
+    ):
+        assert (folder / name).is_file() and (folder / name).stat().st_size > 0, name
+    assert not (folder / "map.ply").exists()
+    assert len(np.loadtxt(folder / "odometry_kitti.txt")) == 5
+    json.loads((folder / "loops.json").read_text())
+    marker = json.loads((folder / "result.json").read_text())
+    assert marker["status"] == "partial" and "map.ply" in marker["reason"]
+    assert [p for p in folder.rglob("*") if ".tmp" in p.name] == []
 
 
 # -- 14. map stopped after its odometry names the folder it kept -----------------------------------

@@ -24,8 +24,9 @@ import open3d as o3d
 from pydantic import model_validator
 
 from vcr_odom.data.base import LidarSequence, Points
+from vcr_odom.errors import DataError
 from vcr_odom.geometry import Transform, lidar_to_camera_poses
-from vcr_odom.io import write_kitti_poses, write_tum_trajectory
+from vcr_odom.io import describe_os_error, write_kitti_poses, write_tum_trajectory
 from vcr_odom.loops import pipeline
 from vcr_odom.loops.nodes import Node, NodeRecorder
 from vcr_odom.loops.pipeline import Phases, loop_network, loops_json
@@ -187,10 +188,7 @@ def map_and_save(
         "peak_rss_bytes": _peak_rss_bytes(),
     }
 
-    def extras(unit: Path) -> None:
-        _write_odometry(unit, run, sequence)
-        write_json(unit / "loops.json", loops_json(decisions, nodes))
-        voxel_map.save(unit / "map.ply")
+    def write_metrics(unit: Path) -> None:
         write_json(
             unit / "metrics.json",
             {
@@ -207,6 +205,8 @@ def map_and_save(
                 "odometry": odometry_report.to_dict() if odometry_report is not None else None,
             },
         )
+
+    def write_plot(unit: Path) -> None:
         accepted = [d for d in decisions if d.accepted]
         plot_trajectories(
             unit / "trajectory.png",
@@ -220,9 +220,34 @@ def map_and_save(
             ],
         )
 
+    writers: dict[str, Callable[[Path], Any]] = {  # the small files first: a full disk takes the map
+        "odometry_kitti.txt, odometry_tum.txt": lambda unit: _write_odometry(unit, run, sequence),
+        "loops.json": lambda unit: write_json(unit / "loops.json", loops_json(decisions, nodes)),
+        "metrics.json": write_metrics,
+        "map.ply": lambda unit: voxel_map.save(unit / "map.ply"),
+        "trajectory.png": write_plot,
+    }
+    failed: dict[str, str] = {}
+
+    def extras(unit: Path) -> str | None:
+        """Each file on its own: one that cannot be written (a full disk) is named, the rest kept."""
+        for names, write in writers.items():
+            try:
+                write(unit)
+            except (OSError, DataError) as error:
+                cause = error if isinstance(error, OSError) else error.__cause__
+                failed[names] = (
+                    describe_os_error(cause)
+                    if isinstance(cause, OSError)
+                    else str(error).replace(str(unit), str(folder))
+                )
+                for name in names.split(", "):
+                    (unit / name).unlink(missing_ok=True)
+        return f"not written: {'; '.join(f'{n} ({r})' for n, r in failed.items())}" if failed else None
+
     try:
         save_trajectory(folder, outcome.mapped_run, sequence, frames_selected=len(indices), extras=extras)
-    except BaseException as error:  # e.g. a full disk writing map.ply: keep the optimised poses, say so
+    except BaseException as error:  # the trajectory itself could not be written, or an interrupt
         save_trajectory(
             folder,
             outcome.mapped_run,
@@ -231,9 +256,17 @@ def map_and_save(
             status="partial",
             reason=f"{interruption_reason(error)} while writing the map, loops and scores",
         )
+        note_kept(error, f"the optimised trajectory is kept in {folder} (result.json: partial)")
         raise
     if on_saved is not None:
         on_saved()
+    if failed:
+        kept = [n for n in writers if n not in failed]
+        first = next(iter(failed.values()))
+        raise DataError(
+            f"{folder}: {', '.join(failed)} not written ({first}); kept: trajectory_kitti.txt, "
+            f"trajectory_tum.txt, {', '.join(kept) or 'nothing else'} (result.json: partial)"
+        )
     return outcome
 
 

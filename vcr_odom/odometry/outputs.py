@@ -30,8 +30,9 @@ CHECKPOINT_EVERY_FRAMES = 50
 TRAJECTORY_FILES = ("trajectory_kitti.txt", "trajectory_tum.txt", "frames.json")
 """The files that always describe the same frames (and the marker's ``frames_done``)."""
 
-Extras = Callable[[Path], None]
-"""Writes more files (scores, a plot) into a unit's folder before its marker."""
+Extras = Callable[[Path], str | None]
+"""Writes more files (scores, a plot) into a unit's folder before its marker; returns why the unit is
+only ``partial`` (a file it could not write, the others kept), or None."""
 
 
 @dataclass
@@ -69,8 +70,9 @@ def save_trajectory(
         write_kitti_poses(unit / "trajectory_kitti.txt", poses)
         write_tum_trajectory(unit / "trajectory_tum.txt", poses, run.timestamps)
         write_json(unit / "frames.json", {"frame_indices": run.frame_indices, "poses_frame": frame})
-        if extras is not None:
-            extras(unit)
+        missing = extras(unit) if extras is not None else None
+        if missing:
+            status, reason = "partial", "; ".join(filter(None, (reason, missing)))
         write_marker(unit, status, len(run.frame_indices), selected, reason, method=run.method)
     return SavedTrajectory(kitti=folder / TRAJECTORY_FILES[0], tum=folder / TRAJECTORY_FILES[1], frame=frame)
 
