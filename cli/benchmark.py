@@ -30,8 +30,16 @@ Relative paths are taken from the suite file's folder."""
     "--out",
     type=click.Path(path_type=Path, file_okay=False),
     default=None,
-    help="The suite's folder [default: results/benchmark_<suite file's name>]. Rerunning into the same "
-    "folder skips complete cells and reruns partial or failed ones.",
+    help="The suite's folder [default: RESULTS_DIR/benchmark_<suite file's name>]. Rerunning into the "
+    "same folder skips complete cells and reruns partial or failed ones.",
+)
+@click.option(
+    "--results-dir",
+    type=click.Path(path_type=Path, file_okay=False),
+    default=Path("results"),
+    show_default=True,
+    help="Where result folders are written, as for run, compare and map: the suite's folder goes "
+    "under it unless --out names one.",
 )
 @click.option(
     "--jobs",
@@ -48,12 +56,14 @@ Relative paths are taken from the suite file's folder."""
     help="Run the cells as Ray tasks: 'local' starts a local cluster of --jobs CPUs, an address joins "
     "one ('auto', 'ray://host:10001'). Needs vcr-odom[ray]; data and --out on a file system every node sees.",
 )
-def benchmark(suite_file: Path, out: Path | None, jobs: int, ray_address: str | None) -> None:
+def benchmark(
+    suite_file: Path, out: Path | None, results_dir: Path, jobs: int, ray_address: str | None
+) -> None:
     """Run a benchmark suite: every dataset x method x stride as `run` (or `map`) would, then
     summary.json, summary.md (per dataset, the mean over datasets and the pooled devkit drift) and plots."""
     from vcr_odom.suite.suite import planned, run_plan
 
-    folder = out or Path("results") / f"benchmark_{suite_file.stem}"
+    folder = out or results_dir / f"benchmark_{suite_file.stem}"
     with planned(suite_file, folder, ray=ray_address) as plan:
         cells, todo = plan.cells, plan.todo
         if len(todo) < len(cells):

@@ -374,3 +374,18 @@ def test_a_recording_and_a_map_cell_take_their_place_in_a_suite(data: Path, tmp_
     assert "_map_" in rows["b", "icp10+loops"]["folder"]
     assert (tmp_path / "out" / rows["b", "icp10+loops"]["folder"] / "loops.json").is_file()
     assert rows["b", "icp10+loops"]["ate_m"] == rows["b", "icp10"]["ate_m"]  # no revisit: unchanged
+
+
+def test_results_dir_names_where_the_suite_folder_goes_as_for_run_compare_and_map(
+    data: Path, tmp_path: Path
+) -> None:
+    from click.testing import CliRunner
+
+    from vcr_odom.cli.main import cli
+
+    suite = tmp_path / "mine.toml"
+    suite.write_text(f'methods = ["icp10"]\n[[dataset]]\nname = "a"\ndata_root = "{data}"\nseq = "01"\n')
+    result = CliRunner().invoke(cli, ["benchmark", str(suite), "--results-dir", str(tmp_path / "res")])
+    assert result.exit_code == 0, result.output
+    rows = json.loads((tmp_path / "res" / "benchmark_mine" / "summary.json").read_text())["rows"]
+    assert [row["method"] for row in rows] == ["icp10"]
