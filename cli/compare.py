@@ -13,7 +13,13 @@ from vcr_odom.cli.options import (
     sequence_options,
     vcr_options,
 )
-from vcr_odom.cli.progress import EXIT_CODES_HELP, console, exit_interrupted, frame_progress
+from vcr_odom.cli.progress import (
+    EXIT_CODES_HELP,
+    console,
+    exit_interrupted,
+    frame_progress,
+    interrupt_label,
+)
 from vcr_odom.cli.run import given, reject_unused_options
 from vcr_odom.cli.tables import ComparisonRow, comparison_table, pair_protocol_table
 from vcr_odom.data.selection import FrameSelection
@@ -153,6 +159,6 @@ def print_comparison(comparison: Comparison, stride: int) -> None:
     console.print(f"Results in {comparison.folder}")
     if comparison.interrupted:
         exit_interrupted(
-            f"Interrupted: the methods not shown were not run; the partial result is kept in "
-            f"{comparison.folder} (result.json: partial)."
+            f"Interrupted ({interrupt_label()}): the methods not shown were stopped or not run; the "
+            f"partial result is kept in {comparison.folder} (result.json: partial)."
         )

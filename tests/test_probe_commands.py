@@ -397,3 +397,30 @@ def test_map_stopped_after_its_odometry_names_the_partial_folder(
     marker = json.loads((folder / "result.json").read_text())
     assert marker["status"] == "partial" and marker["frames_done"] == 5
     assert len(np.loadtxt(folder / "trajectory_kitti.txt")) == 5
+
+
+# -- 15. compare stopped in a +loops row prints the rows that finished -----------------------------
+
+
+def test_compare_stopped_in_a_loops_row_prints_the_finished_row(
+    small_synthetic_root: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from vcr_odom.loops import pipeline
+
+    def stopped(*_args: object, **_kwargs: object) -> None:
+        raise KeyboardInterrupt  # Ctrl-C after the +loops row's odometry
+
+    monkeypatch.setattr(pipeline, "close_loops", stopped)
+    results = tmp_path / "results"
+    result = invoke(
+        "compare", "--data-root", small_synthetic_root, "--frames", "0:5", "-b", "kiss-icp",
+        "-b", "kiss-icp+loops", "--results-dir", results,
+    )  # fmt: skip
+    assert result.exit_code == 130, result.output
+    (folder,) = [p for p in results.iterdir() if p.name.startswith("20")]
+    text = " ".join(result.output.split())
+    assert "odometry: frames 0..4" in text and "│ kiss-icp " in result.output, result.output
+    assert "Interrupted (Ctrl-C)" in text and str(folder) in text
+    assert "Traceback" not in result.output
+    assert json.loads((folder / "result.json").read_text())["status"] == "partial"
+    assert (folder / "kiss-icp" / "trajectory_kitti.txt").is_file()

@@ -128,7 +128,8 @@ Method = Odometry | SequentialOdometry | Unavailable | Mapped
 class Comparison:
     """What a comparison produced: the rows of each protocol and notes on what was left out.
 
-    ``interrupted``: Ctrl-C stopped it (the rows hold what finished; the folder is marked partial).
+    ``interrupted``: Ctrl-C (or SIGTERM, SIGHUP) stopped it: the rows hold what finished, and the
+    method stopped in its odometry; the folder is marked partial.
     """
 
     folder: Path
@@ -193,8 +194,12 @@ def run_comparison(settings: CompareSettings, progress: ProgressFactory | None =
                 publish_comparison(comparison, interruption_reason(error))
                 note_kept(error, f"what finished is kept in {folder} (result.json: partial)")
             else:
-                remove_result_folder(folder)
-                note_kept(error, "no method had finished; no result folder was kept")
+                remove_result_folder(folder)  # with the method's own partial folder: say so, whatever
+                if isinstance(error, KeyboardInterrupt):  # that method's note said it kept
+                    error.kept_note = "no method had finished; no result folder was kept"  # type: ignore[attr-defined]
+        if isinstance(error, KeyboardInterrupt) and comparison.odometry:
+            comparison.interrupted = True  # stopped inside a method (a +loops row's loop phase):
+            return comparison  # the rows that finished are shown, as for a stop in the odometry
         raise
     stopped = next(
         (o.run.interruption or "interrupted" for o in comparison.odometry if o.run.interrupted), ""
