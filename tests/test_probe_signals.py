@@ -21,6 +21,7 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 
 import pytest
+from paced_cli import paced_cli_source
 
 from vcr_odom import results as results_module
 from vcr_odom.results import deferred_interrupts, read_marker, result_unit, write_marker
@@ -31,18 +32,7 @@ FRAMES = 12
 PAUSE_AFTER_FRAME = 0.5
 """Seconds the wrapper waits after publishing each frame: where the test's signal lands."""
 
-WRAPPER = f"""
-import sys, time
-from vcr_odom.odometry import outputs
-outputs.CHECKPOINT_EVERY_FRAMES = 1
-publish = outputs.Checkpoints.__call__
-def publish_then_pause(self, index, pose):
-    publish(self, index, pose)
-    time.sleep({PAUSE_AFTER_FRAME})
-outputs.Checkpoints.__call__ = publish_then_pause
-from vcr_odom.cli.main import main
-main()
-"""
+WRAPPER = paced_cli_source(PAUSE_AFTER_FRAME)
 
 SLOW_IMPORT = """
 import pathlib, sys, time

@@ -24,6 +24,7 @@ from pathlib import Path
 
 import pytest
 from click.testing import CliRunner, Result
+from paced_cli import paced_cli_source
 
 from vcr_odom.synth import generate_sequence
 
@@ -31,19 +32,7 @@ FRAMES = 8
 PAUSE_AFTER_FRAME = 0.4
 """Seconds each frame is held in the wrapper: a cell of 8 frames lasts over 3 s, where signals land."""
 
-WRAPPER = f"""
-import time
-from vcr_odom.odometry import outputs
-outputs.CHECKPOINT_EVERY_FRAMES = 1
-publish = outputs.Checkpoints.__call__
-def publish_then_pause(self, index, pose):
-    publish(self, index, pose)
-    time.sleep({PAUSE_AFTER_FRAME})
-outputs.Checkpoints.__call__ = publish_then_pause
-if __name__ == "__main__":
-    from vcr_odom.cli.main import main
-    main()
-"""
+WRAPPER = paced_cli_source(PAUSE_AFTER_FRAME)
 
 
 @pytest.fixture(scope="module")
