@@ -58,7 +58,14 @@ def parse_variant(text: str) -> tuple[str, DoubtRule, dict[str, Any]]:
         if key in POLISH_FIELDS:
             polish[key] = POLISH_FIELDS[key](int(value))
         elif key in fields:
-            changes[key] = int(value) if fields[key] in ("int", int) else float(value)
+            kind = fields[key]
+            changes[key] = (
+                int(value)
+                if kind in ("int", int)
+                else bool(int(value))
+                if kind in ("bool", bool)
+                else float(value)
+            )
         else:
             known = ", ".join([*fields, *POLISH_FIELDS])
             raise SystemExit(f"--variant {text!r}: unknown field {key!r}; fields: {known}")

@@ -49,7 +49,8 @@ for spec in "${DRIVES[@]}"; do
   SYNTH+=(--sequence "$folder")
 done
 
-RULES=(--variant "kiss-icp voxel=adapt_voxel:0" --variant "point to point=point_to_plane:0" --baseline kiss-icp)
+RULES=(--variant "kiss-icp voxel=adapt_voxel:0" --variant "point to point=point_to_plane:0"
+  --variant "no second start=second_start:0" --baseline kiss-icp)
 table() {  # label json [doubt_misses options...]
   local label=$1 json=$2
   shift 2

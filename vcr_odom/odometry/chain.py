@@ -26,7 +26,7 @@ import numpy as np
 from vcr_odom.data.base import Points
 from vcr_odom.errors import ConfigError
 from vcr_odom.geometry import Transform, motion_difference, project_to_se3
-from vcr_odom.odometry.guided_kiss import BASIN_DEG, BASIN_M
+from vcr_odom.odometry.guided_kiss import BASIN_DEG, BASIN_M, within_basin
 from vcr_odom.odometry.limits import InitialGuess, MotionLimits
 from vcr_odom.odometry.polish import Polish, PolishResult, PriorAttempt
 from vcr_odom.registration.base import (
@@ -37,6 +37,8 @@ from vcr_odom.registration.base import (
     RegistrationResult,
 )
 
+FAR_FROM_PRIOR = "far from the prior"
+SECOND_START_AGREES = "the polish from standing still ends there too"
 RECENT_PAIRS = 5
 """Pairs whose median estimated speed a new pair's may not depart from implausibly
 (:class:`~vcr_odom.odometry.limits.MotionLimits`): the estimates as made, before any was replaced, so
@@ -87,6 +89,10 @@ class DoubtRule:
       where a wrong minimum can fit as well as the right one. The fit misses these quiet failures;
       keyframes saved by distance, whose spacing the constant-velocity prior cannot know, meet them
       most (docs/benchmarks.md, "Robust by default", has the measurements). A car at 10 Hz stays well inside.
+      Such a result is first put to a second start (``second_start``; False skips it): the polish from
+      standing still. Where that start lies outside the prediction's basin and still ends in the
+      prediction's result, two independent starts agree and the result is not in doubt: the test the
+      network's start would put it to, at the cost of one local registration instead of the network.
     - When the checks above doubted more than ``share`` of the last ``window`` pairs (at least half a
       window of them): on such a stretch (keyframes, large strides) the prior is wrong more often than
       right, so a pair it seems to get right is no more trustworthy than its neighbours, and asking on
@@ -99,6 +105,7 @@ class DoubtRule:
     correction_m: float = BASIN_M
     correction_deg: float = BASIN_DEG
     share: float = 0.5
+    second_start: bool = True
 
 
 def _flag_unregistered(info: dict[str, Any]) -> dict[str, Any]:
@@ -253,12 +260,16 @@ class Odometry:
             frame.polish, previous.polish, pose=self._pose, last_motion=self._last_motion
         )
         reason = self._doubt_about(attempt, seconds)
+        confirmed = self._second_start_confirms(reason, attempt, frame, previous)
+        if confirmed:
+            reason = None
         self._doubted.append(reason is not None)  # the prior's own record: asking for the share below
         reason = reason or self._doubt_everywhere()  # does not count, so the share can fall again
         if reason is None:
             polished = self.polish.finish(attempt, frame.polish, previous.polish, None, pose=self._pose)
             self._fits.append(attempt.fit)
-            info = polished.info | {"prior_fit": attempt.fit, "global": "not needed"}
+            needed = f"not needed: {SECOND_START_AGREES}" if confirmed else "not needed"
+            info = polished.info | {"prior_fit": attempt.fit, "global": needed}
             return polished.motion, _flag_unregistered(info)
         self._prepare_for_registrar([f for f in (previous, frame) if f.registrar is None])
         result = self.registrar.register(frame.registrar, previous.registrar, None)
@@ -281,8 +292,21 @@ class Odometry:
             return f"poor fit {attempt.fit:.2f} (median {median:.2f})"
         moved_m, turned_deg = attempt.correction
         if 0.0 < self.doubt.correction_m < moved_m or 0.0 < self.doubt.correction_deg < turned_deg:
-            return f"far from the prior: {moved_m:.2f} m, {turned_deg:.1f} deg"
+            return f"{FAR_FROM_PRIOR}: {moved_m:.2f} m, {turned_deg:.1f} deg"
         return None
+
+    def _second_start_confirms(
+        self, reason: str | None, attempt: PriorAttempt, frame: PreparedFrame, previous: PreparedFrame
+    ) -> bool:
+        """Whether a result doubted only for lying far from the prior is confirmed (``second_start``):
+        the polish from standing still, a start outside the prediction's basin, ends in the prediction's
+        result, so two independent starts share one minimum."""
+        if not (self.doubt.second_start and reason is not None and reason.startswith(FAR_FROM_PRIOR)):
+            return False
+        assert self.polish is not None
+        if within_basin(self._last_motion, np.eye(4)):
+            return False  # one start twice: it confirms nothing
+        return within_basin(self.polish.from_rest(attempt, frame.polish, previous.polish), attempt.motion)
 
     def _doubt_everywhere(self) -> str | None:
         doubted, seen = sum(self._doubted), len(self._doubted)

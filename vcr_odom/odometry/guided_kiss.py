@@ -150,7 +150,7 @@ class GuidedKissICP(KissICP):
         normals = registration_normals(source, downsample) if self.point_to_plane else None
         attempt = KissAttempt(frame, source, downsample, sigma, prediction, None, axes, normals)
         if align:
-            attempt.pose = self._held_align(attempt, prediction)
+            attempt.pose = self.held_align(attempt, prediction)
         return attempt
 
     def finish(self, attempt: KissAttempt, guess: Transform | None = None) -> tuple[Transform, str]:
@@ -169,9 +169,9 @@ class GuidedKissICP(KissICP):
         if guess is not None:
             guess = project_to_se3(guess)
             if new_pose is None:
-                new_pose, start, start_pose = self._held_align(attempt, guess), "global", guess
+                new_pose, start, start_pose = self.held_align(attempt, guess), "global", guess
             elif not within_basin(new_pose, guess):
-                from_guess = self._held_align(attempt, guess)
+                from_guess = self.held_align(attempt, guess)
                 if self._fits_better(attempt.source, from_guess, new_pose):
                     new_pose, start, start_pose = from_guess, "global", guess
         if new_pose is None:
@@ -198,7 +198,7 @@ class GuidedKissICP(KissICP):
             return frame.source, frame.downsample
         return self.voxelize(self.preprocessor.preprocess(frame.raw, np.array([]), last_delta))
 
-    def _held_align(self, attempt: KissAttempt, guess: Transform) -> Transform:
+    def held_align(self, attempt: KissAttempt, guess: Transform) -> Transform:
         """The registration from ``guess`` (finished point to plane where the attempt has normals),
         holding its position along the frame's weak axes; ``guess`` itself where the frame has fewer
         than :data:`MIN_SOURCE_POINTS` (see there)."""

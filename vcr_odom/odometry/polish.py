@@ -95,6 +95,8 @@ class Polish(Protocol):
         self, attempt: PriorAttempt, frame: Any, previous: Any, coarse: Transform | None, *, pose: Transform
     ) -> PolishResult: ...
 
+    def from_rest(self, attempt: PriorAttempt, frame: Any, previous: Any) -> Transform: ...
+
     def restart(self, frame: Any, pose: Transform, motion: Transform) -> None: ...
 
 
@@ -149,6 +151,10 @@ class IcpPolish:
         result = self.icp.register(frame, previous, last_motion)
         motion = np.asarray(result.transform, dtype=np.float64)
         return PriorAttempt(motion, float(result.fitness), result, motion_difference(last_motion, motion))
+
+    def from_rest(self, attempt: PriorAttempt, frame: Any, previous: Any) -> Transform:
+        """The relative motion ICP reaches from standing still (a second start beside the prior's)."""
+        return np.asarray(self.icp.register(frame, previous, np.eye(4)).transform, dtype=np.float64)
 
     def finish(
         self, attempt: PriorAttempt, frame: Any, previous: Any, coarse: Transform | None, *, pose: Transform
@@ -304,6 +310,12 @@ class KissIcpPolish:
             distance = self.config.mapping.voxel_size
             polished.fit = frame_to_frame_fit(attempt.state.source, polished.motion, previous, distance)
         return polished
+
+    def from_rest(self, attempt: PriorAttempt, frame: KissFrame, previous: KissFrame) -> Transform:
+        """The relative motion kiss-icp reaches against its map from standing still (the last pose), a
+        second start beside its prediction; nothing is committed."""
+        last_pose = self.kiss.last_pose
+        return invert(last_pose) @ self.kiss.held_align(attempt.state, last_pose)
 
     def _finished(self, attempt: KissAttempt, guess: Transform | None, pose: Transform) -> PolishResult:
         new_pose, start = self.kiss.finish(attempt, guess)
