@@ -65,7 +65,7 @@ from vcr_odom.loops.pipeline import Phases, close_loops, loop_network, loops_jso
 from vcr_odom.loops.settings import LoopSettings
 from vcr_odom.map_command import MapSettings
 from vcr_odom.metrics.evo_errors import ate_rpe
-from vcr_odom.odometry.loop import run_odometry
+from vcr_odom.odometry.frame_loop import run_odometry
 from vcr_odom.odometry.outputs import ground_truth_for
 from vcr_odom.odometry.run import method_for
 

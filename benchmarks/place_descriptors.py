@@ -41,7 +41,7 @@ from vcr_odom.loops.candidates import Chain, chi2_gate, find_candidates, revisit
 from vcr_odom.loops.nodes import Node, NodeNormals, NodeRecorder
 from vcr_odom.loops.settings import LoopSettings
 from vcr_odom.loops.verify import odometry_information
-from vcr_odom.odometry.loop import run_odometry
+from vcr_odom.odometry.frame_loop import run_odometry
 from vcr_odom.odometry.outputs import ground_truth_for
 from vcr_odom.odometry.run import RunSettings, method_for
 from vcr_odom.registration.vcr import VcrRegistrar

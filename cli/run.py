@@ -28,7 +28,7 @@ from vcr_odom.data.selection import FrameSelection
 from vcr_odom.errors import ConfigError
 from vcr_odom.evaluation.rows import parse_row_spec, split_loops
 from vcr_odom.odometry.factory import DEFAULT_GLOBAL_POLISH, GLOBAL_METHODS, parse_method_spec
-from vcr_odom.odometry.loop import OdometryRun
+from vcr_odom.odometry.frame_loop import OdometryRun
 from vcr_odom.odometry.polish import POLISHES
 from vcr_odom.odometry.run import RunSettings, run_sequence
 from vcr_odom.registration import METHOD_NAMES

@@ -16,7 +16,7 @@ from vcr_odom.data.selection import FrameSelection
 from vcr_odom.errors import ConfigError, MissingExtraError
 from vcr_odom.evaluation.compare import CompareSettings, run_comparison
 from vcr_odom.geometry import normalise_to_first
-from vcr_odom.odometry.loop import run_odometry
+from vcr_odom.odometry.frame_loop import run_odometry
 from vcr_odom.registration import make_method
 
 INSTALLED = importlib.util.find_spec("kiss_slam") is not None

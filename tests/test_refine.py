@@ -243,7 +243,7 @@ def test_the_polish_stops_earlier_than_kiss_icp_and_lands_where_kiss_icp_does() 
 
 def test_why_the_network_ran_is_counted_by_kind_of_reason() -> None:
     """metrics.json's ``global_registration``: one count per kind, not one per figure in the reason."""
-    from vcr_odom.odometry.loop import OdometryRun
+    from vcr_odom.odometry.frame_loop import OdometryRun
     from vcr_odom.odometry.outputs import global_consultations
 
     reasons = ["first pair", "not needed", "poor fit 0.51 (median 0.63)", "poor fit 0.40 (median 0.70)"]

@@ -35,7 +35,7 @@ from vcr_odom.loops.verify import CHECKS, LoopDecision
 from vcr_odom.mapping import VoxelMap
 from vcr_odom.metrics import EvaluationReport, evaluate
 from vcr_odom.odometry.chain import Odometry
-from vcr_odom.odometry.loop import OdometryRun, run_odometry
+from vcr_odom.odometry.frame_loop import OdometryRun, run_odometry
 from vcr_odom.odometry.outputs import Checkpoints, ground_truth_for, run_summary, save_trajectory
 from vcr_odom.odometry.run import FrameHook, ProgressFactory, RunSettings, method_for
 from vcr_odom.plots import plot_trajectories

@@ -30,8 +30,8 @@ from vcr_odom.metrics import EvaluationReport
 from vcr_odom.model.weights import default_weights_path, read_weights
 from vcr_odom.odometry.chain import Consult, Odometry
 from vcr_odom.odometry.factory import DEFAULT_CONSULT, build_odometry, parse_method_spec
+from vcr_odom.odometry.frame_loop import OdometryRun
 from vcr_odom.odometry.limits import InitialGuess
-from vcr_odom.odometry.loop import OdometryRun
 from vcr_odom.odometry.outputs import ground_truth_for, run_summary
 from vcr_odom.odometry.run import ProgressFactory, kiss_polish_options, run_and_save, vcr_options
 from vcr_odom.plots import plot_trajectories

@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from vcr_odom.data.base import LidarSequence
-from vcr_odom.odometry.loop import OdometryRun, run_odometry
+from vcr_odom.odometry.frame_loop import OdometryRun, run_odometry
 from vcr_odom.registration.kiss_slam import KissSlamOdometry, LoopClosure
 
 

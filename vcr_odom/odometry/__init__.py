@@ -9,8 +9,8 @@ from vcr_odom.odometry.factory import (
     default_polish,
     parse_method_spec,
 )
+from vcr_odom.odometry.frame_loop import OdometryRun, run_odometry
 from vcr_odom.odometry.limits import InitialGuess, MotionLimits
-from vcr_odom.odometry.loop import OdometryRun, run_odometry
 from vcr_odom.odometry.polish import POLISHES, IcpPolish, KissIcpPolish, Polish, PolishResult
 
 __all__ = [

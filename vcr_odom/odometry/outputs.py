@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 from vcr_odom.data.base import LidarSequence
 from vcr_odom.geometry import Transform, lidar_to_camera_poses, normalise_to_first
 from vcr_odom.io import write_kitti_poses, write_tum_trajectory
-from vcr_odom.odometry.loop import OdometryRun
+from vcr_odom.odometry.frame_loop import OdometryRun
 from vcr_odom.results import Status, result_unit, write_json, write_marker
 
 CHECKPOINT_EVERY_FRAMES = 50

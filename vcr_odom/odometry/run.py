@@ -24,8 +24,8 @@ from vcr_odom.mapping import VoxelMap, check_map_outside_scans, check_map_path
 from vcr_odom.metrics import EvaluationReport, evaluate
 from vcr_odom.odometry.chain import Consult, Odometry
 from vcr_odom.odometry.factory import DEFAULT_CONSULT, build_odometry, canonical_spec, parse_method_spec
+from vcr_odom.odometry.frame_loop import OdometryRun, run_odometry
 from vcr_odom.odometry.limits import InitialGuess
-from vcr_odom.odometry.loop import OdometryRun, run_odometry
 from vcr_odom.odometry.outputs import Checkpoints, ground_truth_for, run_summary, save_trajectory
 from vcr_odom.plots import plot_trajectories
 from vcr_odom.registration.base import SequentialOdometry
