@@ -577,3 +577,18 @@ def test_the_loop_phase_estimates_each_nodes_normals_once(sample_nodes, network,
     assert set(estimated) == {node.cloud.tobytes() for node in nodes}
     assert set(estimated.values()) == {1}, "a node's normals estimated more than once"
     assert np.array_equal(np.asarray(normals.cloud(0).normals), fresh)
+
+
+def test_map_without_loops_loads_no_network(small_synthetic_root: Path, tmp_path: Path, monkeypatch) -> None:
+    """--no-loops is the odometry and its map alone: the loop network (a weights file read, its
+    memory) is never built."""
+    import vcr_odom.map_command as map_command
+
+    def no_network(*_: object) -> None:
+        raise AssertionError("the loop network was loaded for --no-loops")
+
+    monkeypatch.setattr(map_command, "loop_network", no_network)
+    args = ["map", "--data-root", str(small_synthetic_root), "--seq", "00", "--frames", "0:3", "--no-loops"]
+    result = CliRunner().invoke(cli, [*args, "--method", "icp", "--results-dir", str(tmp_path)])
+    assert result.exit_code == 0, result.output
+    assert (tmp_path / "latest" / "trajectory_kitti.txt").is_file()

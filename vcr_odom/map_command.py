@@ -100,7 +100,12 @@ def map_sequence(
     sequence = settings.selection.open()
     indices = settings.selection.indices(sequence)
     odometry = method_for(settings)
-    network = loop_network(settings.weights, settings.device, settings.vcr_points, odometry)
+    # --no-loops maps the odometry alone: no network to load
+    network = (
+        loop_network(settings.weights, settings.device, settings.vcr_points, odometry)
+        if settings.loops
+        else None
+    )
     folder = create_result_folder(
         settings.results_dir,
         f"map_{sequence.label}_{settings.spec}",
@@ -123,7 +128,7 @@ def map_sequence(
 def map_and_save(
     sequence: LidarSequence,
     odometry: Odometry | SequentialOdometry,
-    network: VcrRegistrar,
+    network: VcrRegistrar | None,
     indices: Sequence[int],
     folder: Path,
     options: LoopSettings,

@@ -78,7 +78,7 @@ class ClosedLoops:
 
 def close_loops(
     settings: LoopSettings,
-    network: VcrRegistrar,
+    network: VcrRegistrar | None,
     nodes: list[Node],
     odometry_poses: np.ndarray,
     phase: Phases | None = None,
@@ -90,6 +90,8 @@ def close_loops(
     if not settings.loops:  # the baseline: the odometry as it is
         phase.seconds |= {"loops": 0.0, "graph": 0.0}
         return ClosedLoops([], np.array(odometry_poses, copy=True), {"used": False})
+    if network is None:
+        raise ValueError("close_loops needs a network to register loops (settings.loops is on)")
     started = time.perf_counter()
     normals = NodeNormals(nodes)  # read by the odometry edges, the verification and the walls
     node_poses = np.stack([node.pose for node in nodes])
