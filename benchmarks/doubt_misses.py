@@ -36,7 +36,7 @@ from vcr_odom.metrics.drift import endpoint_drift
 from vcr_odom.metrics.evo_errors import ate_rpe
 from vcr_odom.metrics.pairs import relative_motions
 from vcr_odom.odometry import build_odometry, run_odometry
-from vcr_odom.odometry.chain import DoubtRule
+from vcr_odom.odometry.chain import DoubtRule, network_asked
 
 MISS_M, MISS_DEG = 0.2, 1.0
 
@@ -105,7 +105,7 @@ def run_one(
         options["polish_options"] = polish
     method = build_odometry(spec, **options)
     run = run_odometry(sequence, method, indices)
-    asked = [info.get("global", "every frame") != "not needed" for info in run.per_frame_info[1:]]
+    asked = ["global" not in info or network_asked(info) for info in run.per_frame_info[1:]]
     return {
         "poses": run.poses,
         "asked_pct": 100.0 * float(np.mean(asked)) if asked else 0.0,

@@ -265,7 +265,7 @@ def test_a_result_far_from_the_prior_that_a_start_from_standing_still_confirms_i
     misses by a metre or more where the step changes, beyond the basin. With ``second_start`` the
     polish also runs from standing still; where both starts end in one result the network is not
     asked, and the poses stay those of asking it (the scripted registrar answers the truth)."""
-    from vcr_odom.odometry.chain import SECOND_START_AGREES, DoubtRule
+    from vcr_odom.odometry.chain import SECOND_START_AGREES, DoubtRule, network_asked
 
     sequence = SynthSequence(frames=24, seed=2)
     indices = [0, 1, 2, 3, 5, 6, 7, 10, 11, 12, 14, 15, 16, 19, 20, 21, 23]
@@ -280,5 +280,7 @@ def test_a_result_far_from_the_prior_that_a_start_from_standing_still_confirms_i
     reasons = [info["global"] for info in runs[True].per_frame_info[1:]]
     assert any(reason == f"not needed: {SECOND_START_AGREES}" for reason in reasons), reasons
     assert asked[True] < asked[False], asked
+    for second_start, run in runs.items():  # the frames' records say where the network was asked
+        assert sum(network_asked(info) for info in run.per_frame_info[1:]) == asked[second_start]
     assert trajectory_pair_errors(runs[True].poses, runs[False].poses).trans_errors_m.max() < 0.05
     assert trajectory_pair_errors(runs[True].poses, gt).trans_errors_m.max() < 0.25

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import statistics
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -38,6 +38,7 @@ from vcr_odom.registration.base import (
 )
 
 FAR_FROM_PRIOR = "far from the prior"
+NOT_NEEDED = "not needed"
 SECOND_START_AGREES = "the polish from standing still ends there too"
 RECENT_PAIRS = 5
 """Pairs whose median estimated speed a new pair's may not depart from implausibly
@@ -106,6 +107,13 @@ class DoubtRule:
     correction_deg: float = BASIN_DEG
     share: float = 0.5
     second_start: bool = True
+
+
+def network_asked(info: Mapping[str, Any]) -> bool:
+    """Whether the global registrar (the network) was asked for this frame's motion: with
+    ``consult="on-doubt"`` a frame's ``global`` says why, or that it was not needed (and why not)."""
+    reason = info.get("global")
+    return bool(reason) and not str(reason).startswith(NOT_NEEDED)
 
 
 def _flag_unregistered(info: dict[str, Any]) -> dict[str, Any]:
@@ -268,7 +276,7 @@ class Odometry:
         if reason is None:
             polished = self.polish.finish(attempt, frame.polish, previous.polish, None, pose=self._pose)
             self._fits.append(attempt.fit)
-            needed = f"not needed: {SECOND_START_AGREES}" if confirmed else "not needed"
+            needed = f"{NOT_NEEDED}: {SECOND_START_AGREES}" if confirmed else NOT_NEEDED
             info = polished.info | {"prior_fit": attempt.fit, "global": needed}
             return polished.motion, _flag_unregistered(info)
         self._prepare_for_registrar([f for f in (previous, frame) if f.registrar is None])

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from vcr_odom.odometry.chain import network_asked
 from vcr_odom.viewer.result import (
     ESTIMATE,
     FLAGGED,
@@ -39,13 +40,6 @@ LOCAL_MAP_RADIUS_M = 80.0
 REDRAW_SECONDS = 0.1
 FOLLOW_DISTANCE_M = 60.0
 FRAME_SCAN_M = 30.0
-
-
-def network_asked(info: Mapping[str, Any]) -> bool:
-    """Whether the global registrar (the network) was asked for this frame's motion: with
-    ``consult="on-doubt"`` the frame's ``global`` names why, or says ``not needed``."""
-    reason = info.get("global")
-    return bool(reason) and reason != "not needed"
 
 
 class LiveView:
