@@ -9,6 +9,7 @@ import click
 from rich.progress import Progress
 from rich.table import Table
 
+from vcr_odom.cli.options import results_dir_option
 from vcr_odom.cli.progress import EXIT_CODES_HELP, bar_columns, console, exit_interrupted, interrupt_label
 
 SUITE_HELP = """\b
@@ -33,13 +34,9 @@ Relative paths are taken from the suite file's folder."""
     help="The suite's folder [default: RESULTS_DIR/benchmark_<suite file's name>]. Rerunning into the "
     "same folder skips complete cells and reruns partial or failed ones.",
 )
-@click.option(
-    "--results-dir",
-    type=click.Path(path_type=Path, file_okay=False),
-    default=Path("results"),
-    show_default=True,
-    help="Where result folders are written, as for run, compare and map: the suite's folder goes "
-    "under it unless --out names one.",
+@results_dir_option(
+    "Where result folders are written, as for run, compare and map: the suite's folder goes "
+    "under it unless --out names one."
 )
 @click.option(
     "--jobs",

@@ -8,6 +8,7 @@ from pathlib import Path
 import click
 from rich.markup import escape
 
+from vcr_odom.cli.options import results_dir_option
 from vcr_odom.cli.progress import EXIT_CODES_HELP, console, notes
 from vcr_odom.cli.tables import report_table
 from vcr_odom.evaluation.files import evaluate_files, write_evaluation
@@ -30,13 +31,9 @@ from vcr_odom.results import check_output_file, latest_trajectory, recorded_cali
     help="Estimated poses, KITTI format (e.g. a run's trajectory_kitti.txt). Default: the latest "
     "run's, RESULTS_DIR/latest/trajectory_kitti.txt (the file scored is named).",
 )
-@click.option(
-    "--results-dir",
-    type=click.Path(path_type=Path, file_okay=False),
-    default=Path("results"),
-    show_default=True,
-    help="Where run, map and compare wrote their result folders: its 'latest' link names the run "
-    "scored when --est is not given.",
+@results_dir_option(
+    "Where run, map and compare wrote their result folders: its 'latest' link names the run "
+    "scored when --est is not given."
 )
 @click.option(
     "--calib",

@@ -154,14 +154,22 @@ def _from_environment(name: str) -> bool:
     return context is not None and context.get_parameter_source(name) is ParameterSource.ENVIRONMENT
 
 
-def results_option(function: F) -> F:
-    return click.option(
-        "--results-dir",
-        type=click.Path(path_type=Path, file_okay=False),
-        default=Path("results"),
-        show_default=True,
-        help="Where timestamped result folders (and a 'latest' link) are written.",
-    )(function)
+def results_dir_option(help: str) -> Callable[[F], F]:
+    """``--results-dir``: one name for where results go, in every command that writes or reads them."""
+
+    def decorate(function: F) -> F:
+        return click.option(
+            "--results-dir",
+            type=click.Path(path_type=Path, file_okay=False),
+            default=Path("results"),
+            show_default=True,
+            help=help,
+        )(function)
+
+    return decorate
+
+
+results_option = results_dir_option("Where timestamped result folders (and a 'latest' link) are written.")
 
 
 def initial_guess_option(function: F) -> F:
