@@ -260,14 +260,21 @@ def latest_trajectory(root: str | os.PathLike[str]) -> Path:
     )
 
 
+def recorded_config(folder: str | os.PathLike[str]) -> dict[str, Any]:
+    """The settings a result folder's ``config.json`` records (``{}`` where it is missing or
+    unreadable: what reads it, ``eval`` and ``view``, then asks the user instead)."""
+    try:
+        config = json.loads((Path(folder) / "config.json").read_text(encoding="utf-8"))["config"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return {}
+    return config if isinstance(config, dict) else {}
+
+
 def recorded_calibration(folder: str | os.PathLike[str]) -> Path | None:
     """The calib.txt the run in ``folder`` read (its ``config.json``: ``--calib``, else the KITTI
     layout's ``sequences/SEQ/calib.txt``) where it still exists: scoring that run as it scored itself
     takes the same frame."""
-    try:
-        selection = json.loads((Path(folder) / "config.json").read_text())["config"]["selection"]
-    except (OSError, ValueError, KeyError, TypeError):
-        return None
+    selection = recorded_config(folder).get("selection")
     if not isinstance(selection, dict):
         return None
     calib = selection.get("calib")

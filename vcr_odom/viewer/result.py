@@ -23,7 +23,7 @@ from vcr_odom.errors import DataError, VcrOdomError
 from vcr_odom.evaluation.files import FRAMES_FILE, read_frames_file
 from vcr_odom.geometry import camera_to_lidar_poses, normalise_to_first
 from vcr_odom.io import read_kitti_poses
-from vcr_odom.results import recorded_calibration
+from vcr_odom.results import recorded_calibration, recorded_config
 from vcr_odom.viewer.scene import Color, Scene, overview_camera
 
 ESTIMATE: Color = (0.85, 0.13, 0.10)
@@ -108,7 +108,7 @@ def read_result(
         raise DataError(
             f"{folder / FRAMES_FILE} lists {len(indices)} frames but {estimate} holds {len(raw)} poses"
         )
-    config = _config(folder)
+    config = recorded_config(folder)
     notes: list[str] = []
     tr = _calibration(folder, calib, recorded is not None and recorded.poses_frame == "camera")
 
@@ -128,14 +128,6 @@ def read_result(
         if data.map_file is not None:
             data.map_points = _read_map(data.map_file)
     return data
-
-
-def _config(folder: Path) -> dict[str, Any]:
-    try:
-        config = json.loads((folder / "config.json").read_text(encoding="utf-8"))["config"]
-    except (OSError, ValueError, KeyError, TypeError):
-        return {}
-    return config if isinstance(config, dict) else {}
 
 
 def _calibration(folder: Path, calib: Path | None, camera_frame: bool) -> NDArray[np.float64] | None:
