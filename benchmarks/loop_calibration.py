@@ -10,6 +10,11 @@ informations give NEES that follow chi-square on 6 dof (median 5.35). The loops'
 allow); the odometry edges' is measured per run by the loops (``odometry_scale``), so their NEES says
 only how far that factor must go. The last line gives the ``loop_information_points`` that puts the
 pooled median of the loops' NEES at 5.35.
+
+Per revisit passage (its loops register the same surfaces a few metres apart), the NEES of the loops'
+information-weighted mean error (in the world frame) under their summed information: where their
+errors are independent it follows chi-square on 6 dof too; where they were one shared error it would
+be as many times larger as the passage has loops ("shared": the same divided by that count).
 """
 
 from __future__ import annotations
@@ -23,7 +28,7 @@ from loop_replay import add_set_option, loop_options_set  # beside this script
 
 from vcr_odom.data.selection import FrameSelection
 from vcr_odom.geometry import invert
-from vcr_odom.loops.candidates import twist
+from vcr_odom.loops.candidates import adjoint, twist
 from vcr_odom.loops.nodes import NodeNormals
 from vcr_odom.loops.pipeline import close_loops, loop_network
 from vcr_odom.loops.settings import LoopSettings
@@ -40,8 +45,16 @@ def nees(information: np.ndarray, measured: np.ndarray, true: np.ndarray) -> flo
     return float(error @ information @ error)
 
 
-def calibrate(path: Path, settings: LoopSettings) -> tuple[list[float], list[float]]:
-    """The NEES of every accepted loop and of every odometry edge of one recording."""
+def passage_nees(loops: list[tuple[np.ndarray, np.ndarray]]) -> float:
+    """The NEES of the information-weighted mean of world-frame errors ``(error, information)``."""
+    summed = sum(information for _, information in loops)
+    mean = np.linalg.solve(summed, sum(information @ error for error, information in loops))
+    return float(mean @ summed @ mean)
+
+
+def calibrate(path: Path, settings: LoopSettings) -> tuple[list[float], list[float], list[tuple[int, float]]]:
+    """The NEES of every accepted loop, of every odometry edge, and of every revisit passage's loops
+    together (with how many loops it has) of one recording."""
     with path.open("rb") as handle:
         recording = pickle.load(handle)  # the caller's own recording (see loop_replay.py)
     folder = Path(recording["sequence"])
@@ -58,16 +71,18 @@ def calibrate(path: Path, settings: LoopSettings) -> tuple[list[float], list[flo
     ]
     network = loop_network(*(recording["network"][k] for k in ("weights", "device", "vcr_points")))
     closed = close_loops(settings, network, nodes, recording["poses"])
-    loops = [
-        nees(
-            d.information,
-            d.measured,
-            invert(gt[nodes[d.candidate.target].position]) @ gt[nodes[d.candidate.source].position],
-        )
-        for d in closed.decisions
-        if d.accepted
-    ]
-    return loops, edges
+    loops: list[float] = []
+    passages: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}
+    for d in closed.decisions:
+        if not d.accepted:
+            continue
+        target = gt[nodes[d.candidate.target].position]
+        true = invert(target) @ gt[nodes[d.candidate.source].position]
+        loops.append(nees(d.information, d.measured, true))
+        lever, back = adjoint(target), adjoint(invert(target))
+        world_error = lever @ twist(true @ invert(d.measured))
+        passages.setdefault(d.candidate.passage, []).append((world_error, back.T @ d.information @ back))
+    return loops, edges, [(len(group), passage_nees(group)) for group in passages.values()]
 
 
 def main() -> None:
@@ -77,9 +92,11 @@ def main() -> None:
     args = parser.parse_args()
     settings = LoopSettings(**loop_options_set(args.options_set, parser))
     pooled: list[float] = []
+    passages: list[tuple[int, float]] = []
     for path in args.recordings:
-        loops, edges = calibrate(path, settings)
+        loops, edges, groups = calibrate(path, settings)
         pooled += loops
+        passages += groups
         loop_text = f"loops {len(loops)}, NEES median {np.median(loops):.2f}" if loops else "no loop"
         print(f"{path.stem}: {loop_text}; odometry edges {len(edges)}, NEES median {np.median(edges):.3f}")
     if pooled:
@@ -88,6 +105,14 @@ def main() -> None:
         print(
             f"pooled: {len(pooled)} loops, NEES median {median:.2f} (calibrated: {CHI2_MEDIAN_6}); "
             f"loop_information_points {settings.loop_information_points:g} -> {suggested:.0f}"
+        )
+    if passages:
+        independent = float(np.median([value for _, value in passages]))
+        shared = float(np.median([value / count for count, value in passages]))
+        print(
+            f"passages: {len(passages)} ({sum(c for c, _ in passages)} loops), NEES of each passage's mean "
+            f"median {independent:.2f} as independent loops, {shared:.2f} as one shared measurement "
+            f"(calibrated: {CHI2_MEDIAN_6})"
         )
 
 

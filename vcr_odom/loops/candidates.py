@@ -123,8 +123,7 @@ class LoopCandidate:
     """Node ``source`` (the later visit) against node ``target`` (the earlier one); ``prior`` is the
     odometry's ``T_target_source``, ``path_m`` the distance driven between them, ``distance_m`` the
     odometry's distance between them, ``sigma_m`` the odometry's position uncertainty there (the square
-    root of its largest eigenvalue), ``passage`` the revisit passage it was attempted on (the loops of
-    one passage see the same surfaces: their errors are alike)."""
+    root of its largest eigenvalue), ``passage`` the revisit passage it was attempted on."""
 
     source: int
     target: int

@@ -6,9 +6,7 @@ around it (odometry, result folder, map) is :mod:`vcr_odom.map_command`.
 from __future__ import annotations
 
 import copy
-import dataclasses
 import time
-from collections import Counter
 from contextlib import nullcontext
 from dataclasses import dataclass
 from pathlib import Path
@@ -112,8 +110,7 @@ def close_loops(
             decision.reject(*verdict)
     phase.seconds["loops"] = time.perf_counter() - started
     started = time.perf_counter()
-    kept = [(edge, d.candidate.passage) for edge, d in zip(edges, measured, strict=True) if d.accepted]
-    kept_edges = _shared_by_passage(kept)
+    kept_edges = [edge for edge, d in zip(edges, measured, strict=True) if d.accepted]
     up = up_priors(nodes, normals, settings) if kept_edges else None
     after = optimise(node_poses, edge_information, kept_edges, up, selection.odometry_scale)
     for decision, edge in zip(_accepted(decisions), kept_edges, strict=True):
@@ -125,16 +122,6 @@ def close_loops(
     phase.seconds["graph"] = time.perf_counter() - started
     up_summary = {"used": False} if up is None else up.to_dict()
     return ClosedLoops(decisions, poses, up_summary, selection.odometry_scale)
-
-
-def _shared_by_passage(loops: list[tuple[LoopEdge, int]]) -> list[LoopEdge]:
-    """The loops with each one's information shared among the loops of its revisit passage: they
-    register the same surfaces a few metres apart, so their errors are alike and averaging them
-    removes none; together they count as one measurement of the passage."""
-    counts = Counter(passage for _, passage in loops)
-    return [
-        dataclasses.replace(edge, information=edge.information / counts[passage]) for edge, passage in loops
-    ]
 
 
 def loops_json(decisions: list[LoopDecision], nodes: list[Node]) -> dict[str, Any]:
