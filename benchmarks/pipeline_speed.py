@@ -7,7 +7,7 @@ and reports medians, so machine load affects them alike. Not a test: run
     .venv/bin/python benchmarks/pipeline_speed.py --data-root ../shared/data/kitti-sample --seq 00 \
         --method vcr+kiss-icp --method vcr+icp --baseline kiss-icp --repeat 3 [--frames 0:60] [--stride 1] \
         [--json out.json] [--device auto|cpu|cuda] [--batch-size B] [--network-batch 1 --network-batch 16] \
-        [--rss-every 100]
+        [--rss-every 100] [--markdown [--label TEXT] [--no-header]]
 
 A method may carry ``@every-frame`` or ``@on-doubt`` (``vcr+kiss-icp@every-frame``): when its global
 registration runs (``--consult``). Without --data-root it generates a 100-frame synthetic sequence.
@@ -18,7 +18,11 @@ records resident memory every N frames (``rss_mib_by_frame`` in the JSON).
 The per-stage columns come from :mod:`stage_profile` (beside this script): milliseconds per frame in
 load, crop, ground removal, sampling, encoder, registration, polish pre-processing, polish, all of
 kiss-icp, and ``other`` (the rest of the wall time: chaining, checks, waiting). Stages that run in
-the producer thread overlap the others, so the columns can add up to more than the wall time.
+the producer thread overlap the others, so the columns can add up to more than the wall time. Where
+the sequence has ground truth, each method's end-point drift and SE(3)-aligned ATE are given beside
+its speed (the same in every round: the methods are deterministic). ``--markdown`` prints one markdown
+table instead (``--label``: its first column, the data; ``--no-header``: rows only, to append to
+another's), as ``benchmarks/frame_time.sh`` does for ``make tables``.
 """
 
 from __future__ import annotations
@@ -32,6 +36,7 @@ import sys
 import tempfile
 from pathlib import Path
 
+from doubt_misses import score  # beside this script
 from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
@@ -65,6 +70,7 @@ def measure(args: argparse.Namespace) -> dict:
 
     with profile.patched():
         run = run_odometry(sequence, method, indices, on_frame=sample_rss if args.rss_every else None)
+    truth = sequence.gt_poses
     stages = {stage: profile.seconds.get(stage, 0.0) for stage in STAGES}
     stages["other"] = max(run.wall_seconds - sum(stages.values()), 0.0)
     return {
@@ -76,6 +82,7 @@ def measure(args: argparse.Namespace) -> dict:
         "loop_seconds": run.stage_seconds,
         "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
         "rss_mib_by_frame": rss,
+        **score(run.poses, None if truth is None else truth[run.frame_indices]),
     }
 
 
@@ -162,6 +169,47 @@ def report(results: list[dict], baseline: str) -> Table:
     return table
 
 
+MARKDOWN_STAGES = {
+    "sampling": "sampling",
+    "ground removal": "ground",
+    "encoder": "encoder",
+    "self-attention": "attention",
+    "registration": "head",
+    "polish prepare": "polish prepare",
+    "polish": "polish",
+    "kiss-icp": "kiss-icp",
+    "load": "load",
+}
+"""The stages the markdown table names, in its words (crop and ``other`` are left out: small, or the
+rest of the wall time)."""
+
+
+def markdown(results: list[dict], baseline: str, label: str, header: bool = True) -> str:
+    """One markdown row per method: speed against ``baseline``, accuracy, where a frame's time goes."""
+    base = next(r for r in results if r["method"] == baseline)
+    lines = []
+    if header:
+        lines += [
+            f"| data | method | frames/s | against {baseline} | end-point % | ATE m (SE3) | "
+            "where a frame's time goes [ms] |",
+            "|---|---|---|---|---|---|---|",
+        ]
+    for r in results:
+        spent = [
+            f"{name} {1000.0 * r['stage_seconds'][stage] / r['frames']:.1f}"
+            for stage, name in MARKDOWN_STAGES.items()
+            if r["stage_seconds"].get(stage, 0.0) * 1000.0 / r["frames"] >= 0.05
+        ]
+        accuracy = [f"{r[key]:.2f}" if key in r else "-" for key in ("end_point_pct",)]
+        accuracy += [f"{r['ate_m']:.3f}" if "ate_m" in r else "-"]
+        lines.append(
+            f"| {label} | `{r['method']}` | {r['frames_per_second']:.1f} | "
+            f"{r['frames_per_second'] / base['frames_per_second']:.2f}x | {' | '.join(accuracy)} | "
+            f"{', '.join(spent)} |"
+        )
+    return "\n".join(lines)
+
+
 def network_throughput(args: argparse.Namespace, data_root: Path) -> list[dict]:
     """Pairs per second of VCR-Net alone (both encodings + registration) at each ``--network-batch``."""
     import time
@@ -240,6 +288,9 @@ def main() -> None:
         "--repeat", type=int, default=1, help="rounds over all methods, interleaved; the table shows medians"
     )
     parser.add_argument("--rss-every", type=int, default=0, help="sample resident memory every N frames")
+    parser.add_argument("--markdown", action="store_true", help="print one markdown table instead")
+    parser.add_argument("--label", default="", help="the markdown table's first column (the data)")
+    parser.add_argument("--no-header", action="store_true", help="markdown rows only")
     parser.add_argument("--worker", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.worker:
@@ -256,8 +307,11 @@ def main() -> None:
         rounds = [[run_worker(method, args, data_root) for method in methods] for _ in range(args.repeat)]
         results = [median_of([r[i] for r in rounds]) for i in range(len(methods))]
         network = network_throughput(args, data_root) if args.network_batch else []
+    if args.markdown:
+        print(markdown(results, args.baseline, args.label, header=not args.no_header))
+    else:
+        Console(width=200).print(report(results, args.baseline))
     console = Console(width=200)
-    console.print(report(results, args.baseline))
     if network:
         console.print(network_report(network))
     if args.json:
