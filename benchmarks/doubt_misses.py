@@ -41,9 +41,10 @@ from vcr_odom.odometry.chain import DoubtRule, network_asked
 MISS_M, MISS_DEG = 0.2, 1.0
 
 
-POLISH_FIELDS = {"adapt_voxel": bool, "point_to_plane": bool}
+POLISH_FIELDS = {"adapt_voxel": bool, "point_to_plane": bool, "coarse_start": bool}
 """Variant fields that go to the polish instead of the doubt rule (``adapt_voxel:0``: kiss-icp's voxel;
-``point_to_plane:0``: no point-to-plane finish on sparse scans)."""
+``point_to_plane:0``: no point-to-plane finish on sparse scans; ``coarse_start:0``: no coarse stage for
+far starts)."""
 
 
 def parse_variant(text: str) -> tuple[str, DoubtRule, dict[str, Any]]:
@@ -56,7 +57,7 @@ def parse_variant(text: str) -> tuple[str, DoubtRule, dict[str, Any]]:
     for item in filter(None, body.split(",")):
         key, _, value = item.partition(":")
         if key in POLISH_FIELDS:
-            polish[key] = POLISH_FIELDS[key](int(value))
+            polish[key] = POLISH_FIELDS[key](float(value))
         elif key in fields:
             kind = fields[key]
             changes[key] = (

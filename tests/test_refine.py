@@ -148,14 +148,16 @@ def test_icp_polish_also_starts_from_the_last_motion(synth: SynthSequence) -> No
     assert errors[True] < 0.05 < 0.3 < errors[False]
 
 
-def test_guided_kiss_fed_its_own_prediction_is_kiss_icp() -> None:
+@pytest.mark.parametrize("coarse_voxel", [0.0, 2.0])
+def test_guided_kiss_fed_its_own_prediction_is_kiss_icp(coarse_voxel: float) -> None:
     """The learned start only adds: given kiss-icp's own prediction (and with the weak axes' hold off),
-    the poses are kiss-icp's."""
+    the poses are kiss-icp's; a coarse map for far starts changes nothing for the prediction's."""
     from vcr_odom.registration.kiss import KissIcpOdometry
 
     as_input = KissIcpPolish().prepare
     sequence = SynthSequence(frames=8, seed=1)
-    reference, guided = KissIcpOdometry(), GuidedKissICP(kiss_config(), weak_share=0.0)
+    reference = KissIcpOdometry()
+    guided = GuidedKissICP(kiss_config(), weak_share=0.0, coarse_voxel=coarse_voxel)
     for index in range(len(sequence)):
         frame = sequence.frame(index)
         expected = reference.step(frame)
@@ -186,6 +188,37 @@ def test_kiss_polish_takes_the_learned_start_where_kiss_icp_loses_track() -> Non
     replaced = run_odometry(sequence, alone_guess, indices)
     assert [info["polish_start"] for info in replaced.per_frame_info[1:]] == ["global"] * (len(indices) - 1)
     assert trajectory_pair_errors(replaced.poses, gt).trans_errors_m.max() < 0.25
+
+
+def test_a_far_start_registers_on_the_coarse_map_first_and_lands_where_the_fine_map_alone_does(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Frames 4 apart with the true motion as the learned guess, metres from kiss-icp's first
+    prediction (identity), on a polish map finer than kiss-icp's own (0.5 m): the polish registers it
+    at kiss-icp's voxel first, then on its own map, and ends where its own map alone ends; at kiss-icp's
+    voxel there is no coarser map to use."""
+    sequence = SynthSequence(frames=17, seed=0)
+    indices = list(range(0, 17, 4))
+    gt = normalise_to_first(sequence.gt_poses[indices])
+    coarse_calls: list[int] = []
+    align_to = GuidedKissICP._align_to
+
+    def counted(self, voxel_map, source, start, sigma):
+        coarse_calls.append(int(voxel_map is self.coarse_map))
+        return align_to(self, voxel_map, source, start, sigma)
+
+    monkeypatch.setattr(GuidedKissICP, "_align_to", counted)
+    poses = []
+    for polish in (KissIcpPolish(voxel_size=0.5), KissIcpPolish(voxel_size=0.5, coarse_start=False)):
+        coarse_calls.clear()
+        run = run_odometry(sequence, Odometry(ScriptedRegistrar(gt), polish), indices)
+        assert run.per_frame_info[1]["polish_start"] == "global"  # the prediction is identity there
+        poses.append(run.poses)
+        assert (sum(coarse_calls) > 0) == polish.coarse_start
+    assert KissIcpPolish(voxel_size=1.0).kiss.coarse_map is None  # kiss-icp's own voxel
+    difference = trajectory_pair_errors(poses[0], poses[1])
+    assert difference.trans_errors_m.max() < 0.05  # measured 2.9 cm: the polish's stopping criterion's scale
+    assert trajectory_pair_errors(poses[0], gt).trans_errors_m.max() < 0.25
 
 
 def test_chained_poses_stay_rotations_over_a_long_run() -> None:

@@ -18,6 +18,7 @@ import numpy as np
 import open3d as o3d
 from kiss_icp.config import KISSConfig
 from kiss_icp.kiss_icp import KissICP, get_preprocessor, voxel_down_sample
+from kiss_icp.mapping import VoxelHashMap
 from scipy.spatial import cKDTree
 
 from vcr_odom.errors import ConfigError
@@ -117,17 +118,35 @@ class GuidedKissICP(KissICP):
     (:func:`~vcr_odom.odometry.plane_refinement.refine_point_to_plane`), for scans whose point-to-point fit
     slides back at small steps.
 
+    ``coarse_voxel``: where it is coarser than ``config``'s voxel (kiss-icp's own, for a polish map
+    made finer for keyframe sets or sparse scans: :mod:`~vcr_odom.odometry.polish_voxel`), a start
+    outside the basin of kiss-icp's prediction (:func:`within_basin`: the second start from standing
+    still, a global estimate) is registered against a second local map on that voxel first, then
+    against the fine map from there: from a start a metre off the fine map alone takes ~20 iterations.
+    A start within the basin registers as before (docs/benchmarks.md, "A coarse stage for far
+    starts").
+
     With ``weak_share=0``, ``point_to_plane=False`` and fed its own prediction as the guess, it
     reproduces kiss-icp's poses exactly (a test holds it to that).
     """
 
     def __init__(
-        self, config: KISSConfig, weak_share: float = WEAK_AXIS_SHARE, point_to_plane: bool = False
+        self,
+        config: KISSConfig,
+        weak_share: float = WEAK_AXIS_SHARE,
+        point_to_plane: bool = False,
+        coarse_voxel: float = 0.0,
     ) -> None:
         super().__init__(config)
         check_kiss_internals(self)
         self.weak_share = weak_share
         self.point_to_plane = point_to_plane
+        self.coarse_voxel = coarse_voxel
+        self.coarse_map = (
+            VoxelHashMap(coarse_voxel, config.data.max_range, config.mapping.max_points_per_voxel)
+            if coarse_voxel > config.mapping.voxel_size
+            else None
+        )
         self.last_sigma = float("nan")
         self.last_source_points = 0
         self.last_weak_axes = 0
@@ -137,7 +156,7 @@ class GuidedKissICP(KissICP):
         an empty map; ``last_delta`` is the motion into this frame (the next prediction's velocity)."""
         _, downsample = self._voxelized(frame, np.eye(4))
         pose = project_to_se3(pose)
-        self.local_map.update(downsample, pose)
+        self._update_maps(downsample, pose)
         self.last_pose, self.last_delta = pose, project_to_se3(last_delta)
 
     def from_prediction(self, frame: KissFrame, align: bool = True) -> KissAttempt:
@@ -177,7 +196,7 @@ class GuidedKissICP(KissICP):
         if new_pose is None:
             raise ValueError("finish() needs a guess for an attempt made without the prediction")
         self.adaptive_threshold.update_model_deviation(np.linalg.inv(start_pose) @ new_pose)
-        self.local_map.update(attempt.downsample, new_pose)
+        self._update_maps(attempt.downsample, new_pose)
         self.last_delta = np.linalg.inv(self.last_pose) @ new_pose
         self.last_pose = new_pose
         self.last_sigma = attempt.sigma
@@ -212,14 +231,30 @@ class GuidedKissICP(KissICP):
         return hold_along(pose, guess, attempt.weak_axes)
 
     def _align(self, source: np.ndarray, guess: Transform, sigma: float) -> Transform:
-        """kiss-icp's registration step, as its ``register_frame`` calls it."""
+        """kiss-icp's registration step, as its ``register_frame`` calls it; from a far start, after a
+        coarse one (``coarse_voxel``)."""
+        start = project_to_se3(guess)
+        if self.coarse_map is not None and not within_basin(start, self.last_pose @ self.last_delta):
+            coarse = voxel_down_sample(source, 1.5 * self.coarse_voxel)
+            if len(coarse) >= MIN_SOURCE_POINTS:
+                start = self._align_to(self.coarse_map, coarse, start, sigma)
+        return self._align_to(self.local_map, source, start, sigma)
+
+    def _align_to(
+        self, voxel_map: VoxelHashMap, source: np.ndarray, start: Transform, sigma: float
+    ) -> Transform:
         return self.registration.align_points_to_map(
             points=source,
-            voxel_map=self.local_map,
-            initial_guess=project_to_se3(guess),
+            voxel_map=voxel_map,
+            initial_guess=start,
             max_correspondance_distance=3 * sigma,
             kernel=sigma,
         )
+
+    def _update_maps(self, downsample: np.ndarray, pose: Transform) -> None:
+        self.local_map.update(downsample, pose)
+        if self.coarse_map is not None:
+            self.coarse_map.update(voxel_down_sample(downsample, 0.5 * self.coarse_voxel), pose)
 
     def _fits_better(self, source: np.ndarray, pose: Transform, than: Transform) -> bool:
         """Whether more of ``source`` lands within half a map voxel of the local map at ``pose``."""
