@@ -200,8 +200,10 @@ def markdown(results: list[dict], baseline: str, label: str, header: bool = True
             for stage, name in MARKDOWN_STAGES.items()
             if r["stage_seconds"].get(stage, 0.0) * 1000.0 / r["frames"] >= 0.05
         ]
-        accuracy = [f"{r[key]:.2f}" if key in r else "-" for key in ("end_point_pct",)]
-        accuracy += [f"{r['ate_m']:.3f}" if "ate_m" in r else "-"]
+        accuracy = [
+            f"{r['end_point_pct']:.2f}" if "end_point_pct" in r else "-",
+            f"{r['ate_m']:.3f}" if "ate_m" in r else "-",
+        ]
         lines.append(
             f"| {label} | `{r['method']}` | {r['frames_per_second']:.1f} | "
             f"{r['frames_per_second'] / base['frames_per_second']:.2f}x | {' | '.join(accuracy)} | "
