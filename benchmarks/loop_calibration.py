@@ -27,8 +27,7 @@ import numpy as np
 from loop_replay import add_set_option, loop_options_set  # beside this script
 
 from vcr_odom.data.selection import FrameSelection
-from vcr_odom.geometry import invert
-from vcr_odom.loops.candidates import adjoint, twist
+from vcr_odom.geometry import adjoint, invert, twist
 from vcr_odom.loops.nodes import NodeNormals
 from vcr_odom.loops.pipeline import close_loops, loop_network
 from vcr_odom.loops.settings import LoopSettings

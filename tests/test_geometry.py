@@ -132,3 +132,19 @@ def test_project_to_se3_returns_the_nearest_rotation() -> None:
     for _ in range(50):
         nearby = Rotation.from_rotvec(rng.normal(0.0, 1e-7, 3)).as_matrix() @ rotation
         assert np.linalg.norm(nearby - noisy[:3, :3]) >= distance - 1e-15
+
+
+def test_the_adjoint_moves_a_perturbation_into_the_parent_frame() -> None:
+    """A small left perturbation ``xi`` in a pose's own frame, ``T exp(xi)``, is ``exp(Ad(T) xi) T``:
+    checked against the exact conjugation ``T exp(xi) T^-1``, to first order."""
+    rng = np.random.default_rng(4)
+    pose = geometry.make_transform(
+        Rotation.from_rotvec(rng.normal(size=3)).as_matrix(), rng.normal(size=3) * 20
+    )
+    xi = rng.normal(size=6) * 1e-6
+    small = geometry.make_transform(Rotation.from_rotvec(xi[:3]).as_matrix(), xi[3:])
+    conjugated = geometry.twist(pose @ small @ geometry.invert(pose))
+    np.testing.assert_allclose(geometry.adjoint(pose) @ xi, conjugated, rtol=1e-4, atol=1e-12)
+    np.testing.assert_allclose(
+        geometry.skew([1.0, 2.0, 3.0]) @ [4.0, 5.0, 6.0], np.cross([1, 2, 3], [4, 5, 6])
+    )

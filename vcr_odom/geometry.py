@@ -111,3 +111,25 @@ def project_to_se3(poses: ArrayLike) -> Transform:
     poses[..., :3, :3] = (u * fix[..., None, :]) @ vt
     poses[..., 3, :] = (0.0, 0.0, 0.0, 1.0)
     return poses
+
+
+def skew(vector: ArrayLike) -> NDArray[np.float64]:
+    """The 3x3 matrix of ``vector x``: ``skew(a) @ b == np.cross(a, b)``."""
+    x, y, z = np.asarray(vector, dtype=np.float64)
+    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+
+
+def adjoint(transform: Transform) -> NDArray[np.float64]:
+    """The 6x6 adjoint of ``transform`` for twists ordered (rotation, translation), open3d's order: a
+    left perturbation ``xi`` in ``transform``'s frame is ``adjoint(transform) @ xi`` in its parent's."""
+    rotation = transform[:3, :3]
+    result = np.zeros((6, 6))
+    result[:3, :3] = rotation
+    result[3:, 3:] = rotation
+    result[3:, :3] = skew(transform[:3, 3]) @ rotation
+    return result
+
+
+def twist(transform: Transform) -> NDArray[np.float64]:
+    """A transform as (rotation vector, translation): the first-order error a covariance describes."""
+    return np.concatenate([Rotation.from_matrix(transform[:3, :3]).as_rotvec(), transform[:3, 3]])

@@ -21,34 +21,11 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
-from vcr_odom.geometry import Transform, invert
+from vcr_odom.geometry import Transform, adjoint, invert, skew, twist
 from vcr_odom.loops.nodes import Node
 from vcr_odom.loops.settings import LoopSettings
-
-
-def adjoint(transform: Transform) -> NDArray[np.float64]:
-    """The 6x6 adjoint of ``transform`` for twists ordered (rotation, translation), open3d's order."""
-    rotation, translation = transform[:3, :3], transform[:3, 3]
-    skew = np.array(
-        [
-            [0.0, -translation[2], translation[1]],
-            [translation[2], 0.0, -translation[0]],
-            [-translation[1], translation[0], 0.0],
-        ]
-    )
-    result = np.zeros((6, 6))
-    result[:3, :3] = rotation
-    result[3:, 3:] = rotation
-    result[3:, :3] = skew @ rotation
-    return result
-
-
-def twist(transform: Transform) -> NDArray[np.float64]:
-    """A transform as (rotation vector, translation): the first-order error a covariance describes."""
-    return np.concatenate([Rotation.from_matrix(transform[:3, :3]).as_rotvec(), transform[:3, 3]])
 
 
 def covariance(information: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -178,8 +155,7 @@ def revisit_chi2(chain: Chain, earlier: int, later: int, radius_m: float) -> tup
     squared Mahalanobis distance, under the odometry's position uncertainty between them, of the part
     of their offset beyond the radius; and that uncertainty's largest standard deviation (m)."""
     point = chain.poses[later][:3, 3]
-    skew = np.array([[0.0, -point[2], point[1]], [point[2], 0.0, -point[0]], [-point[1], point[0], 0.0]])
-    jacobian = np.hstack([-skew, np.eye(3)])  # d(exp(xi) p)/d xi: a rotation moves a far point more
+    jacobian = np.hstack([-skew(point), np.eye(3)])  # d(exp(xi) p)/d xi: a rotation moves a far point more
     spread = jacobian @ chain.world_covariance(earlier, later) @ jacobian.T
     offset = point - chain.poses[earlier][:3, 3]
     distance = float(np.linalg.norm(offset))

@@ -23,8 +23,8 @@ import open3d as o3d
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation, Slerp
 
-from vcr_odom.geometry import Transform, invert
-from vcr_odom.loops.candidates import Chain, adjoint, chi2_gate, mahalanobis2, twist
+from vcr_odom.geometry import Transform, adjoint, invert, twist
+from vcr_odom.loops.candidates import Chain, chi2_gate, mahalanobis2
 from vcr_odom.loops.gravity import UpPriors
 from vcr_odom.loops.settings import LoopSettings
 
