@@ -7,10 +7,11 @@ On keyframe sets the polish registers against a local map on a voxel finer than 
 (``vcr_odom.odometry.polish_voxel``), and kiss-icp's ``align_points_to_map`` then takes most of a
 frame's time: about 20 iterations a call from a start a metre off. The polish's coarse stage
 (``KissIcpPolish(coarse_start=True)``, the default) registers a start outside the prediction's basin
-on a map twice as coarse first (at most kiss-icp's own voxel). Each sequence runs the default method (``vcr+kiss-icp``) without and
-with it, in this process one after the other; the table gives frames, the seconds inside ``align_points_to_map``,
-the wall time, the SE(3)-aligned ATE, the RPE (1 frame) and the end-point drift. Speed from one
-process beside whatever else runs: compare within a sequence only.
+on a map twice as coarse first (at most kiss-icp's own voxel). Each sequence runs the default method
+(``vcr+kiss-icp``) without and with it, in this process one after the other; the table gives frames,
+the seconds inside ``align_points_to_map``, the wall time, the SE(3)-aligned ATE, the RPE (1 frame)
+and the end-point drift. Speed from one process beside whatever else runs: compare within a sequence
+only.
 
 An earlier version of this script patched in a coarse map on twice the polish's voxel for every
 start, the prediction's too (``git show 8a473a2:benchmarks/polish_coarse_to_fine.py``): less time,
