@@ -22,6 +22,8 @@ from vcr_odom.settings import Settings
 
 PRESETS = ("paper", "default")
 Encoder = Literal["invariant", "xyz"]
+RobustKernel = Literal["cauchy", "geman-mcclure"]
+ROBUST_KERNELS: tuple[str, ...] = get_args(RobustKernel)
 ENCODERS: tuple[str, ...] = get_args(Encoder)
 """``invariant``: features from relative geometry only (``vcr_odom.model.invariant_encoder``), unchanged
 by a translation or a rotation about z of the cloud; ``xyz``: the first layer sees absolute coordinates
@@ -44,6 +46,7 @@ INFERENCE_FIELDS: tuple[str, ...] = (
     "input_max_range",
     "robust_iterations",
     "robust_scale",
+    "robust_kernel",
     "consensus_hypotheses",
     "consensus_threshold",
     "consensus_seeds",
@@ -152,7 +155,14 @@ class VcrConfig(Settings):
         "other scan get a virtual point somewhere in its cloud, and with full weight they pull the "
         "estimate towards zero motion. 0 = the paper's single unweighted SVD.",
     )
-    robust_scale: float = _positive(0.125, "Final Cauchy scale of the re-weighting (metres).")
+    robust_scale: float = _positive(0.125, "Final scale c of the re-weighting (metres).")
+    robust_kernel: RobustKernel = Field(
+        "cauchy",
+        description="The re-weighting's weights: cauchy 1 / (1 + (r / c)²), or geman-mcclure, its square, "
+        "whose influence falls to zero with the residual: far outliers that agree with each other (a "
+        "repeated facade matched one bay off) cannot pull a right consensus start away from its inliers "
+        "while c is still wider than the consensus radius.",
+    )
     consensus_hypotheses: int = _count(
         256,
         0,

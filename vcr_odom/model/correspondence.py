@@ -31,6 +31,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from vcr_odom.model.config import ROBUST_KERNELS
 from vcr_odom.model.encoder import gather_neighbours
 
 
@@ -246,10 +247,12 @@ def robust_procrustes(
     threshold: float = 1.0,
     seeds: int = 0,
     group: int = 16,
+    kernel: str = "cauchy",
 ) -> tuple[Tensor, Tensor]:
     """:func:`weighted_procrustes` (or, with ``hypotheses`` or ``seeds``, :func:`consensus_start`), then
     ``iterations`` re-solves with Cauchy weights of each pair's residual ``r``: ``w / (1 + (r / c)²)``
-    with ``c`` halving each round down to ``scale`` (metres).
+    with ``c`` halving each round down to ``scale`` (metres); ``kernel="geman-mcclure"`` squares the
+    robust factor (a redescending influence: see ``VcrConfig.robust_kernel``).
 
     Why: a key point with no counterpart in the other scan still gets a virtual point, somewhere in
     that cloud; at full weight such points pull the estimate towards the centroids' difference, which
@@ -260,6 +263,9 @@ def robust_procrustes(
         rotation, translation = consensus_start(source, target, weights, hypotheses, threshold, seeds, group)
     else:
         rotation, translation = weighted_procrustes(source, target, weights)
+    if kernel not in ROBUST_KERNELS:
+        raise ValueError(f"kernel must be one of {', '.join(ROBUST_KERNELS)}; got {kernel!r}")
+    power = 2 if kernel == "geman-mcclure" else 1
     base = (
         torch.ones(source.shape[:2], dtype=source.dtype, device=source.device) if weights is None else weights
     )
@@ -268,7 +274,7 @@ def robust_procrustes(
         with torch.no_grad():
             moved = source @ rotation.transpose(1, 2) + translation.unsqueeze(1)
             residual = (moved - target).norm(dim=-1)
-            robust = 1.0 / (1.0 + (residual / c) ** 2)
+            robust = (1.0 / (1.0 + (residual / c) ** 2)) ** power
         rotation, translation = weighted_procrustes(source, target, base * robust)
     return rotation, translation
 

@@ -177,7 +177,7 @@ class VCRNet(nn.Module):
 
         - ``paper``: the paper's SVD (weighted by the key points' self-attention weights where
           ``weighted_svd``), nothing else;
-        - ``consensus``: the consensus start and the Cauchy re-weighting (:func:`robust_procrustes`);
+        - ``consensus``: the consensus start and the robust re-weighting (:func:`robust_procrustes`);
         - ``full``: that, then the gated re-pointing rounds (inference only), as ``forward`` runs.
 
         Why three: the consensus and the re-pointing are RANSAC and ICP in all but name, and can
@@ -199,6 +199,7 @@ class VCRNet(nn.Module):
             threshold=c.consensus_threshold,
             seeds=c.consensus_seeds,
             group=c.consensus_group,
+            kernel=c.robust_kernel,
         )
         if head == "full" and not self.training and c.gated_rounds:
             rotation, translation = self._gated_rounds(
@@ -224,7 +225,12 @@ class VCRNet(nn.Module):
             )
             weights = reached.to(key_points.dtype) * (key_weights if c.weighted_svd else 1.0)
             rotation, translation = robust_procrustes(
-                key_points, virtual, weights, iterations=c.robust_iterations, scale=c.robust_scale
+                key_points,
+                virtual,
+                weights,
+                iterations=c.robust_iterations,
+                scale=c.robust_scale,
+                kernel=c.robust_kernel,
             )
         return rotation, translation
 
