@@ -147,7 +147,7 @@ def odometry_scale(loops: Sequence[LoopEdge], chain: Chain) -> float:
     not how far a frame-to-map odometry drifts along them: the loops measure that."""
     if not loops:
         return 1.0
-    target = chi2_median(6)
+    target = chi2_gate(0.5, 6)  # chi-square's median on 6 dof
 
     def median_chi2(log_scale: float) -> float:
         return float(np.median([loop_chi2(loop, chain, math.exp(log_scale)) for loop in loops]))
@@ -157,10 +157,6 @@ def odometry_scale(loops: Sequence[LoopEdge], chain: Chain) -> float:
         middle = 0.5 * (low + high)
         low, high = (middle, high) if median_chi2(middle) > target else (low, middle)
     return math.exp(0.5 * (low + high))
-
-
-def chi2_median(dof: int) -> float:
-    return chi2_gate(0.5, dof)
 
 
 def optimise(

@@ -55,15 +55,13 @@ class Node:
         return int(self.cloud.nbytes + self.pose.nbytes + (0 if self.ground is None else self.ground.nbytes))
 
 
-def voxel_cloud(
-    points: Points, voxel: float = CLOUD_VOXEL_M, max_range: float = CLOUD_MAX_RANGE_M
-) -> NDArray:
-    """``points`` cropped to 1-``max_range`` m and voxel-down-sampled, as float32 xyz. A dense scan
-    is first taken every k-th point down to ~:data:`CLOUD_INPUT_POINTS` (a 1 m voxel of a 64-beam scan
-    holds tens of points): a third of the cost, recorded at every node during the odometry."""
+def voxel_cloud(points: Points, voxel: float = CLOUD_VOXEL_M) -> NDArray:
+    """``points`` cropped to 1-:data:`CLOUD_MAX_RANGE_M` m and voxel-down-sampled, as float32 xyz. A
+    dense scan is first taken every k-th point down to ~:data:`CLOUD_INPUT_POINTS` (a 1 m voxel of a
+    64-beam scan holds tens of points): a third of the cost, recorded at every node during the odometry."""
     if len(points) > 2 * CLOUD_INPUT_POINTS:
         points = points[:: len(points) // CLOUD_INPUT_POINTS]
-    cloud = prepare_cloud(points, 1.0, max_range, voxel, normals=False)
+    cloud = prepare_cloud(points, 1.0, CLOUD_MAX_RANGE_M, voxel, normals=False)
     return np.asarray(cloud.points, dtype=np.float32)
 
 
@@ -182,8 +180,6 @@ AZIMUTH_SECTORS = 36
 def azimuth_coverage(cloud: NDArray) -> float:
     """The fraction of 10 deg azimuth sectors holding a point: ~0.2 for a 70 deg solid-state field of
     view, ~1 for a spinning LiDAR or a Mid-360, whatever the scene."""
-    if len(cloud) == 0:
-        return 0.0
     azimuth = np.arctan2(cloud[:, 1], cloud[:, 0])
     sectors = np.floor((azimuth + math.pi) / (2 * math.pi) * AZIMUTH_SECTORS).astype(int) % AZIMUTH_SECTORS
     return len(np.unique(sectors)) / AZIMUTH_SECTORS

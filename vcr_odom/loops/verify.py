@@ -99,10 +99,6 @@ class LoopDecision:
     def reject(self, check: str, reason: str) -> None:
         self.accepted, self.check, self.reason = False, check, reason
 
-    @property
-    def ends(self) -> tuple[int, int]:
-        return self.candidate.source, self.candidate.target
-
     def to_dict(self) -> dict[str, Any]:
         candidate = self.candidate
         return {
@@ -161,9 +157,8 @@ def fit_information(
     target_points = np.asarray(target.points)
     gaps, nearest = cKDTree(target_points).query(moved, distance_upper_bound=distance)
     inliers = np.isfinite(gaps)
-    information = np.zeros((6, 6))
     if inliers.sum() < 3:
-        return Fit(np.asarray(transform, dtype=np.float64), 0.0, 0.0, information)
+        return Fit(np.asarray(transform, dtype=np.float64), 0.0, 0.0, np.zeros((6, 6)))
     at, normals = moved[inliers], np.asarray(target.normals)[nearest[inliers]]
     residuals = np.einsum("ij,ij->i", at - target_points[nearest[inliers]], normals)
     jacobian = np.hstack([np.cross(at, normals), normals])
