@@ -18,6 +18,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
+from itertools import groupby
 
 import numpy as np
 from numpy.typing import NDArray
@@ -125,15 +126,11 @@ def find_candidates(nodes: list[Node], chain: Chain, settings: LoopSettings) -> 
     nearest: dict[int, LoopCandidate] = {}
     for j in range(len(nodes)):
         earlier = np.flatnonzero(path <= path[j] - settings.min_loop_path_m)
-        if len(earlier) == 0:
-            continue
-        best: tuple[float, int, float] | None = None
-        for i in earlier[np.argsort(np.linalg.norm(positions[earlier] - positions[j], axis=1))[:8]]:
-            score, sigma = revisit_chi2(chain, int(i), j, settings.revisit_radius_m)
-            if score <= gate and (best is None or score < best[0]):
-                best = (score, int(i), sigma)
-        if best is not None:
-            _, i, sigma = best
+        closest = earlier[np.argsort(np.linalg.norm(positions[earlier] - positions[j], axis=1))[:8]]
+        scores = [(*revisit_chi2(chain, int(i), j, settings.revisit_radius_m), int(i)) for i in closest]
+        allowed = [score for score in scores if score[0] <= gate]
+        if allowed:
+            _, sigma, i = min(allowed, key=lambda score: score[0])
             prior = invert(nodes[i].pose) @ nodes[j].pose
             distance = float(np.linalg.norm(positions[j] - positions[i]))
             frames = nodes[j].position - nodes[i].position
@@ -170,10 +167,5 @@ POSITION_FLOOR_M = 0.01
 
 def _passages(indices: list[int]) -> list[list[int]]:
     """Runs of consecutive node indices: the nodes of one revisit, attempted from its closest node."""
-    runs: list[list[int]] = []
-    for j in indices:
-        if runs and j == runs[-1][-1] + 1:
-            runs[-1].append(j)
-        else:
-            runs.append([j])
-    return runs
+    runs = groupby(enumerate(indices), key=lambda pair: pair[1] - pair[0])
+    return [[j for _, j in run] for _, run in runs]
