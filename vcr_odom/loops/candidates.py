@@ -113,6 +113,17 @@ class LoopCandidate:
     passage: int = 0
 
 
+@dataclass(frozen=True)
+class LoopEdge:
+    """A loop, or a gravity prior (:func:`~vcr_odom.loops.gravity.up_priors`): ``transform`` is
+    ``T_target_source``, ``information`` open3d's (the target's frame)."""
+
+    source: int
+    target: int
+    transform: Transform
+    information: NDArray[np.float64]
+
+
 def find_candidates(nodes: list[Node], chain: Chain, settings: LoopSettings) -> list[LoopCandidate]:
     """Per later node, the earlier node (at least ``min_loop_path_m`` before) most likely to be the
     same place, where the chi-square gate allows a revisit; then at most one attempt every

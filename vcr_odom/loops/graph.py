@@ -23,20 +23,10 @@ import open3d as o3d
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation, Slerp
 
-from vcr_odom.geometry import Transform, adjoint, invert, twist
-from vcr_odom.loops.candidates import Chain, chi2_gate, mahalanobis2
+from vcr_odom.geometry import adjoint, invert, twist
+from vcr_odom.loops.candidates import Chain, LoopEdge, chi2_gate, mahalanobis2
 from vcr_odom.loops.gravity import UpPriors
 from vcr_odom.loops.settings import LoopSettings
-
-
-@dataclass(frozen=True)
-class LoopEdge:
-    """A loop: ``transform`` is ``T_target_source``, ``information`` open3d's (the target's frame)."""
-
-    source: int
-    target: int
-    transform: Transform
-    information: NDArray[np.float64]
 
 
 def consistent_loops(

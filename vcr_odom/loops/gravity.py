@@ -17,17 +17,15 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from vcr_odom.geometry import Transform, invert
+from vcr_odom.geometry import invert
+from vcr_odom.loops.candidates import LoopEdge
+from vcr_odom.loops.nodes import Node, NodeNormals
 from vcr_odom.loops.settings import LoopSettings
-
-if TYPE_CHECKING:
-    from vcr_odom.loops.nodes import Node, NodeNormals
 
 SEARCH_DEG = 25.0
 """Normals within this of the node's horizontal are the first guess at walls (a node tilts a few
@@ -124,24 +122,12 @@ the strongest axis' (walls facing one way measure one axis)."""
 
 
 @dataclass(frozen=True)
-class AttitudePrior:
-    """Node ``source``'s roll and pitch held to the world's up: an edge to node 0 (the fixed first
-    node) whose transform is the node's pose turned so that its measured up points up, with
-    information (6x6, open3d's order) only about the rotation axes across it."""
-
-    source: int
-    target: int
-    transform: Transform
-    information: NDArray[np.float64]
-
-
-@dataclass(frozen=True)
 class UpPriors:
     """The up directions the graph was given: ``edges`` (empty when left out), and why: the odometry's
     disagreement with the measured up (90th percentile over the ``nodes_measured``, measured by
     ``measured_by``: "walls" or "ground")."""
 
-    edges: list[AttitudePrior]
+    edges: list[LoopEdge]
     tilt_p90_deg: float | None
     nodes_measured: int
     measured_by: str | None = None
@@ -210,9 +196,10 @@ def _priors(
     nodes: Sequence[Node],
     measured: list[tuple[int, NDArray[np.float64], NDArray[np.float64]]],
     up: NDArray[np.float64],
-) -> list[AttitudePrior]:
-    """Per measured node after the first (node, up in its frame, information on its rotation): its
-    pose turned so that the measured up is the world's ``up``."""
+) -> list[LoopEdge]:
+    """Per measured node after the first (node, up in its frame, information on its rotation): an edge
+    to node 0 (the fixed first node), the node's pose turned so that the measured up is the world's
+    ``up``, informed only about the rotation axes across it (its roll and pitch)."""
     first_inverse = invert(nodes[0].pose)
     priors = []
     for k, node_up, information in measured:
@@ -222,7 +209,7 @@ def _priors(
         wanted[:3, :3] = _turn_onto(nodes[k].pose[:3, :3] @ node_up, up) @ nodes[k].pose[:3, :3]
         edge_information = np.zeros((6, 6))
         edge_information[:3, :3] = information
-        priors.append(AttitudePrior(k, 0, first_inverse @ wanted, edge_information))
+        priors.append(LoopEdge(k, 0, first_inverse @ wanted, edge_information))
     return priors
 
 
