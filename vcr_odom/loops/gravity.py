@@ -205,8 +205,9 @@ def _priors(
     for k, node_up, information in measured:
         if k == 0:
             continue
+        rotation = nodes[k].pose[:3, :3]
         wanted = nodes[k].pose.copy()
-        wanted[:3, :3] = _turn_onto(nodes[k].pose[:3, :3] @ node_up, up) @ nodes[k].pose[:3, :3]
+        wanted[:3, :3] = Rotation.from_rotvec(_rotation_vector(rotation @ node_up, up)).as_matrix() @ rotation
         edge_information = np.zeros((6, 6))
         edge_information[:3, :3] = information
         priors.append(LoopEdge(k, 0, first_inverse @ wanted, edge_information))
@@ -244,8 +245,3 @@ def _rotation_vector(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[
     if sine < 1e-12:
         return np.zeros(3)
     return axis / sine * math.atan2(sine, float(a @ b))
-
-
-def _turn_onto(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
-    """The smallest rotation taking direction ``a`` onto ``b``."""
-    return Rotation.from_rotvec(_rotation_vector(a, b)).as_matrix()

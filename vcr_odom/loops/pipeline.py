@@ -58,10 +58,6 @@ class Phases:
         return self.progress(title, total)
 
 
-def _accepted(decisions: list[LoopDecision]) -> list[LoopDecision]:
-    return [d for d in decisions if d.accepted]
-
-
 @dataclass
 class ClosedLoops:
     """What the loop phase made of an odometry: every candidate's decision, every frame's optimised
@@ -102,7 +98,7 @@ def close_loops(
         for candidate in candidates:
             decisions.append(verifier.verify(candidate, nodes))
             advance(candidate.source, candidate.prior)
-    measured = _accepted(decisions)
+    measured = [d for d in decisions if d.accepted]
     edges = [LoopEdge(d.candidate.source, d.candidate.target, d.measured, d.information) for d in measured]
     selection = select_loops(edges, chain, settings)
     for decision, verdict in zip(measured, selection.verdicts, strict=True):
@@ -110,10 +106,11 @@ def close_loops(
             decision.reject(*verdict)
     phase.seconds["loops"] = time.perf_counter() - started
     started = time.perf_counter()
-    kept_edges = [edge for edge, d in zip(edges, measured, strict=True) if d.accepted]
+    kept = [(d, edge) for d, edge in zip(measured, edges, strict=True) if d.accepted]
+    kept_edges = [edge for _, edge in kept]
     up = up_priors(nodes, normals, settings) if kept_edges else None
     after = optimise(node_poses, edge_information, kept_edges, up, selection.odometry_scale)
-    for decision, edge in zip(_accepted(decisions), kept_edges, strict=True):
+    for decision, edge in kept:
         decision.extra["graph_chi2"] = round(residual_chi2(after, edge), 3)
     if kept_edges:
         poses = correct_frames(odometry_poses, [n.position for n in nodes], node_poses, after)

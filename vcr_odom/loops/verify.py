@@ -101,6 +101,7 @@ class LoopDecision:
 
     def to_dict(self) -> dict[str, Any]:
         candidate = self.candidate
+        scores = {} if self.scores is None else asdict(self.scores)
         return {
             "source_node": candidate.source,
             "target_node": candidate.target,
@@ -113,15 +114,11 @@ class LoopDecision:
             "accepted": self.accepted,
             "reason": self.reason,
             "failed_check": self.check or None,
-            **({} if self.scores is None else _rounded(asdict(self.scores))),
+            **{k: round(v, 4) if isinstance(v, float) else v for k, v in scores.items()},
             **self.extra,
             "odometry_T_target_source": candidate.prior.tolist(),
             "measured_T_target_source": None if self.measured is None else self.measured.tolist(),
         }
-
-
-def _rounded(scores: dict[str, Any]) -> dict[str, Any]:
-    return {k: round(v, 4) if isinstance(v, float) else v for k, v in scores.items()}
 
 
 @dataclass(frozen=True)
