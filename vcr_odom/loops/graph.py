@@ -55,11 +55,13 @@ def _maximum_clique(neighbours: list[set[int]], distances: NDArray) -> set[int]:
     agree best (the smallest sum of distances)."""
     best: list[set[int]] = [set()]
 
+    def rank(clique: set[int]) -> tuple[int, float]:
+        members = sorted(clique)
+        return len(members), -float(distances[np.ix_(members, members)].sum())
+
     def expand(clique: set[int], candidates: set[int], excluded: set[int]) -> None:
         if not candidates and not excluded:
-            if len(clique) > len(best[0]) or (
-                len(clique) == len(best[0]) and _spread(clique, distances) < _spread(best[0], distances)
-            ):
+            if rank(clique) > rank(best[0]):
                 best[0] = set(clique)
             return
         if len(clique) + len(candidates) < len(best[0]):
@@ -72,11 +74,6 @@ def _maximum_clique(neighbours: list[set[int]], distances: NDArray) -> set[int]:
 
     expand(set(), set(range(len(neighbours))), set())
     return best[0]
-
-
-def _spread(clique: set[int], distances: NDArray) -> float:
-    members = sorted(clique)
-    return float(distances[np.ix_(members, members)].sum())
 
 
 @dataclass
