@@ -228,11 +228,7 @@ class LoopVerifier:
         source_input, kept_ground = self._network_points(source_points)
         (source_frame,) = self.network.encode_inputs([(source_input @ turn[:3, :3].T).astype(np.float32)])
         network = self.network.register(source_frame, target_frame)
-        source_cloud = (
-            normal_cloud(source_points, source.cloud_voxel)
-            if submaps
-            else self.normals.cloud(candidate.source)
-        )
+        source_cloud = self._normal_cloud(source_key, nodes)
         scale = distance_scale(source)
         starts = {"network": network.transform @ turn, "odometry": candidate.prior}
         fits = {
@@ -305,12 +301,15 @@ class LoopVerifier:
 
     def _target(self, key: _CloudKey, nodes: list[Node]) -> tuple[VcrFrame, o3d.geometry.PointCloud]:
         if key not in self._targets:
-            cloud = self._cloud(key, nodes)
-            (frame,) = self.network.encode_inputs([self._network_points(cloud)[0]])
-            own = key[1] is None
-            normals = self.normals.cloud(key[0]) if own else normal_cloud(cloud, nodes[key[0]].cloud_voxel)
-            self._targets[key] = (frame, normals)
+            (frame,) = self.network.encode_inputs([self._network_points(self._cloud(key, nodes))[0]])
+            self._targets[key] = (frame, self._normal_cloud(key, nodes))
         return self._targets[key]
+
+    def _normal_cloud(self, key: _CloudKey, nodes: list[Node]) -> o3d.geometry.PointCloud:
+        """A node's own cloud with the normals estimated once for it, or a submap with its own."""
+        if key[1] is None:
+            return self.normals.cloud(key[0])
+        return normal_cloud(self._cloud(key, nodes), nodes[key[0]].cloud_voxel)
 
     def _cloud(self, key: _CloudKey, nodes: list[Node]) -> NDArray[np.float32]:
         index, members = key
