@@ -41,10 +41,7 @@ class Chain:
 
     def __init__(self, poses: NDArray[np.float64], edge_information: list[NDArray[np.float64]]) -> None:
         self.poses = np.asarray(poses, dtype=np.float64)
-        steps = [
-            adjoint(self.poses[k]) @ covariance(info) @ adjoint(self.poses[k]).T
-            for k, info in enumerate(edge_information)
-        ]
+        steps = [self.edge_covariance(k, info) for k, info in enumerate(edge_information)]
         self._prefix = np.concatenate([np.zeros((1, 6, 6)), np.cumsum(np.array(steps).reshape(-1, 6, 6), 0)])
 
     def world_covariance(self, first: int, second: int) -> NDArray[np.float64]:
@@ -66,8 +63,8 @@ class Chain:
         """What a loop ``T_target_source`` asks of the odometry, as a world-frame twist."""
         return twist(self.poses[target] @ measured @ invert(self.poses[source]))
 
-    def loop_covariance(self, target: int, information: NDArray[np.float64]) -> NDArray[np.float64]:
-        """A loop's own covariance in the world frame (its information is in the target's frame)."""
+    def edge_covariance(self, target: int, information: NDArray[np.float64]) -> NDArray[np.float64]:
+        """A loop's or an odometry edge's covariance in the world frame (its information: its target's)."""
         lever = adjoint(self.poses[target])
         return lever @ covariance(information) @ lever.T
 
@@ -81,7 +78,7 @@ class Chain:
     ) -> float:
         """The squared Mahalanobis distance of what a loop asks of the odometry, under the odometry's
         covariance between its ends times ``scale`` and the loop's own."""
-        spread = scale * self.world_covariance(target, source) + self.loop_covariance(target, information)
+        spread = scale * self.world_covariance(target, source) + self.edge_covariance(target, information)
         return mahalanobis2(self.correction(source, target, measured), spread)
 
 
