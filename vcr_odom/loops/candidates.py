@@ -1,12 +1,9 @@
 """The odometry's uncertainty along the path, and the loop candidates it allows.
 
-Each odometry edge (node to next node) carries the information of a fit of the two nodes' clouds at
-the odometry's relative pose (:func:`~vcr_odom.loops.verify.fit_information`): weak along a corridor,
-weak where the clouds fit poorly. Propagated along the path to first order, the edges' covariances
-give the uncertainty of any node relative to any other (:class:`Chain`). A later node is a candidate
-for an earlier one where the position the odometry gives it, with that uncertainty and the sensor's
-revisit radius, allows a revisit (a chi-square gate); the same uncertainty later judges what a loop
-asks of the odometry, and whether two loops agree with each other.
+The odometry edges' covariances (:func:`~vcr_odom.loops.verify.odometry_information`), propagated
+along the path to first order, give the uncertainty of any node relative to any other (:class:`Chain`):
+it gates the candidates (:func:`find_candidates`), then judges what a loop asks of the odometry and
+whether two loops agree with each other.
 
 The world-frame formulation: an error ``xi`` on edge ``k`` (a left perturbation in node ``k``'s frame,
 as open3d's fit information is) moves every later node by ``Ad(P_k) xi`` in the world frame, so the
@@ -83,8 +80,7 @@ class Chain:
 
 
 def chi2_gate(confidence: float, dof: int) -> float:
-    """The chi-square value a squared Mahalanobis distance on ``dof`` dimensions stays under with
-    probability ``confidence``."""
+    """The value a squared Mahalanobis distance on ``dof`` dimensions stays under at ``confidence``."""
     return float(chi2.ppf(confidence, dof))
 
 
@@ -97,8 +93,7 @@ def mahalanobis2(residual: NDArray[np.float64], cov: NDArray[np.float64]) -> flo
 class LoopCandidate:
     """Node ``source`` (the later visit) against node ``target`` (the earlier one); ``prior`` is the
     odometry's ``T_target_source``, ``path_m`` the distance driven between them, ``distance_m`` the
-    odometry's distance between them, ``sigma_m`` the odometry's position uncertainty there (the square
-    root of its largest eigenvalue), ``passage`` the revisit passage it was attempted on."""
+    odometry's, ``sigma_m`` its largest position sigma there, ``passage`` the revisit passage tried."""
 
     source: int
     target: int

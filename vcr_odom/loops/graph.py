@@ -1,15 +1,12 @@
 """The pose graph: which loops agree, then one least-squares solve, then every frame moved with its nodes.
 
 Consistency (:func:`consistent_loops`): pairwise consistency maximisation (PCM; Mangelson et al.,
-ICRA 2018). Two loops are consistent where the cycle they close with the odometry between them misses
-identity by no more than its propagated uncertainty allows; the largest set of mutually consistent
-loops is kept (a maximum clique). A false loop asks for a correction no right loop agrees with; right
-loops agree with each other, whatever the odometry's drift, since the drift they correct is shared.
+ICRA 2018). A false loop asks for a correction no right loop agrees with; right loops agree with each
+other, whatever the odometry's drift, since the drift they correct is shared.
 
-The solve (:func:`optimise`): odometry edges and loops weighted by what each measured (the information
-of their fits, :func:`~vcr_odom.loops.verify.fit_information`), the gravity priors
-(:mod:`~vcr_odom.loops.gravity`), open3d's Levenberg-Marquardt. Where no loop is kept the odometry is
-returned untouched: the priors alone do not move it.
+The solve (:func:`optimise`): odometry edges and loops weighted by what each measured
+(:func:`~vcr_odom.loops.verify.fit_information`), the gravity priors, open3d's Levenberg-Marquardt.
+Where no loop is kept the odometry is returned untouched: the priors alone do not move it.
 """
 
 from __future__ import annotations
@@ -88,8 +85,7 @@ class Selection:
 def select_loops(loops: Sequence[LoopEdge], chain: Chain, settings: LoopSettings) -> Selection:
     """The largest mutually consistent set (:func:`consistent_loops`), then, in rounds, the odometry's
     drift measured by the loops kept (:func:`odometry_scale`) and every loop whose correction that drift
-    makes unlikely (``odometry_confidence``) left out: a look-alike place whose correction the odometry's
-    fit information alone, which does not know how far the odometry drifts, allowed."""
+    makes unlikely (``odometry_confidence``) left out: a look-alike place the fit information allowed."""
     consistent, distances = consistent_loops(loops, chain, settings.pairwise_confidence)
     pairwise = chi2_gate(settings.pairwise_confidence, 6)
     verdicts: list[tuple[str, str] | None] = [None] * len(loops)

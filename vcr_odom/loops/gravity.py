@@ -102,8 +102,7 @@ def _least_tilted(walls: NDArray[np.float64], near: NDArray[np.float64]) -> NDAr
 
 
 def _pull(near: NDArray[np.float64]) -> NDArray[np.float64]:
-    """``near`` counted as :data:`NEAR_WEIGHT` normals perpendicular to the up sought: it holds the
-    tilt that walls facing one way leave free, and is nothing against walls facing two ways."""
+    """``near`` counted as :data:`NEAR_WEIGHT` normals perpendicular to the up sought."""
     return NEAR_WEIGHT * (np.eye(3) - np.outer(near, near))
 
 
@@ -143,8 +142,7 @@ class UpPriors:
 
 
 def up_priors(nodes: Sequence[Node], normals: NodeNormals, settings: LoopSettings) -> UpPriors:
-    """The walls' priors where at least :data:`REFERENCE_NODES` nodes saw walls, otherwise the
-    ground's; none where ``settings.ground_up`` is off."""
+    """The walls' priors, else the ground's (:data:`REFERENCE_NODES`); none where ``ground_up`` is off."""
     if not settings.ground_up:
         return UpPriors([], None, 0)
     walls = [(k, found) for k in range(len(nodes)) if (found := walls_up(nodes[k].cloud, normals.normals(k)))]
@@ -215,9 +213,8 @@ def _priors(
 
 
 def _walls_reference(nodes: Sequence[Node], walls: list[tuple[int, WallsUp]]) -> NDArray[np.float64]:
-    """The world's up: the direction most perpendicular to the walls of the first wall nodes (at least
-    :data:`REFERENCE_NODES`, and all within :data:`UP_REFERENCE_M` of path of the first), pooled in
-    the odometry's frame: nodes that each see walls facing one way measure it together."""
+    """The world's up: the direction most perpendicular to the early wall nodes' walls, pooled in the
+    odometry's frame: nodes that each see walls facing one way measure it together."""
     first = nodes[walls[0][0]].path_m
     early = [
         (nodes[k].pose[:3, :3], found)

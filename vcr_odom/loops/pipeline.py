@@ -77,9 +77,8 @@ def close_loops(
     odometry_poses: np.ndarray,
     phase: Phases | None = None,
 ) -> ClosedLoops:
-    """Candidates, verification, consistency and the graph on nodes recorded along ``odometry_poses``
-    (every frame's, as the :class:`NodeRecorder` saw them): ``map``'s loop phase, and a benchmark's on
-    a recorded or drifted odometry."""
+    """The loop phase on nodes recorded along ``odometry_poses`` (every frame's, as the
+    :class:`NodeRecorder` saw them): ``map``'s, and a benchmark's on a recorded or drifted odometry."""
     phase = phase or Phases(None)
     if not settings.loops:  # the baseline: the odometry as it is
         phase.seconds |= {"loops": 0.0, "graph": 0.0}

@@ -2,8 +2,7 @@
 
 Why one model: a threshold buried in a module can only be found by reading the code; here each has a
 name with its unit, a description, bounds, and a place in the result's ``config.json``. A user tunes
-them as kiss-icp's users do, from a file: ``vcr-odom map --dump-config > loops.toml``, edit, then
-``vcr-odom map --config loops.toml`` (options given on the command line still win).
+them from a file, as kiss-icp's users do (``vcr-odom map --dump-config``, ``--config``: docs/usage.md).
 """
 
 from __future__ import annotations

@@ -10,23 +10,12 @@ shares little with its other visit's scan, so such nodes register their submaps
 (:func:`~vcr_odom.loops.nodes.submap_cloud`).
 
 A loop is a measurement: a relative pose with its information (:func:`fit_information`, the same as
-every odometry edge's). It is rejected where:
-
-- ``points``: a cloud holds too few voxels to register;
-- ``overlap``: too little of the source lies on the target (a wrong fit, or no shared view);
-- ``fit_rmse``: the surfaces lie too far apart once aligned;
-- ``odometry``: the correction it asks of the odometry is unlikely under the odometry's own propagated
-  uncertainty (:class:`~vcr_odom.loops.candidates.Chain`): a look-alike place a block away;
-- ``degenerate``: its surfaces hardly face one direction (the smallest eigenvalue of its normals'
-  scatter, the translation block of its ICP Hessian): it slides along a corridor, a single wall;
-- ``ambiguous``: its two starts end in two different fits, and either the odometry's fits better or
-  the two overlap alike. The network needs no guess; the odometry's start confirms its fit (both end
-  in one) or falls short of it (a guess metres off ends in a worse fit). A fit the network's start
-  does not reach rests on the odometry's guess alone (a bent submap, a repetitive place), and two fits
-  that overlap alike are a place that repeats.
-
-Whether loops agree with each other is decided once all are measured, by the graph
-(:func:`~vcr_odom.loops.graph.consistent_loops`).
+every odometry edge's), rejected by the first of :data:`CHECKS` it fails (docs/usage.md says what
+each catches). ``ambiguous``, two starts that end in two fits where the odometry's fits better or the
+two overlap alike: the network needs no guess; the odometry's start confirms its fit (both end in one)
+or falls short of it (a guess metres off ends in a worse fit). A fit the network's start does not
+reach rests on the odometry's guess alone (a bent submap, a repetitive place), and two fits that
+overlap alike are a place that repeats.
 """
 
 from __future__ import annotations
