@@ -56,27 +56,21 @@ class Chain:
             return self.world_covariance(*a) + self.world_covariance(*b)
         return self.world_covariance(low, inner_low) + self.world_covariance(inner_high, high)
 
-    def correction(self, source: int, target: int, measured: Transform) -> NDArray[np.float64]:
-        """What a loop ``T_target_source`` asks of the odometry, as a world-frame twist."""
-        return twist(self.poses[target] @ measured @ invert(self.poses[source]))
+    def correction(self, loop: LoopEdge) -> NDArray[np.float64]:
+        """What a loop asks of the odometry, as a world-frame twist."""
+        return twist(self.poses[loop.target] @ loop.transform @ invert(self.poses[loop.source]))
 
     def edge_covariance(self, target: int, information: NDArray[np.float64]) -> NDArray[np.float64]:
         """A loop's or an odometry edge's covariance in the world frame (its information: its target's)."""
         lever = adjoint(self.poses[target])
         return lever @ covariance(information) @ lever.T
 
-    def loop_chi2(
-        self,
-        source: int,
-        target: int,
-        measured: Transform,
-        information: NDArray[np.float64],
-        scale: float = 1.0,
-    ) -> float:
+    def loop_chi2(self, loop: LoopEdge, scale: float = 1.0) -> float:
         """The squared Mahalanobis distance of what a loop asks of the odometry, under the odometry's
         covariance between its ends times ``scale`` and the loop's own."""
-        spread = scale * self.world_covariance(target, source) + self.edge_covariance(target, information)
-        return mahalanobis2(self.correction(source, target, measured), spread)
+        own = self.edge_covariance(loop.target, loop.information)
+        spread = scale * self.world_covariance(loop.target, loop.source) + own
+        return mahalanobis2(self.correction(loop), spread)
 
 
 def chi2_gate(confidence: float, dof: int) -> float:

@@ -33,7 +33,7 @@ def consistent_loops(
     Mahalanobis distance (the cycle's misclosure under its uncertainty: the odometry edges one loop
     spans and the other does not, and both loops' own)."""
     count = len(loops)
-    corrections = [chain.correction(loop.source, loop.target, loop.transform) for loop in loops]
+    corrections = [chain.correction(loop) for loop in loops]
     own = [chain.edge_covariance(loop.target, loop.information) for loop in loops]
     distances = np.zeros((count, count))
     for a in range(count):
@@ -101,14 +101,14 @@ def select_loops(loops: Sequence[LoopEdge], chain: Chain, settings: LoopSettings
     scale = 1.0
     for _ in range(ROUNDS):
         scale = odometry_scale([loops[k] for k in members], chain)
-        beyond = [k for k in members if loop_chi2(loops[k], chain, scale) > gate]
+        beyond = [k for k in members if chain.loop_chi2(loops[k], scale) > gate]
         if not beyond or len(beyond) == len(members):
             break
         for k in beyond:
             verdicts[k] = (
                 "odometry",
                 f"rejected: asks the odometry for more than its drift as the other loops measured it "
-                f"(chi2 {loop_chi2(loops[k], chain, scale):.1f} > {gate:.1f})",
+                f"(chi2 {chain.loop_chi2(loops[k], scale):.1f} > {gate:.1f})",
             )
         members = [k for k in members if k not in beyond]
     return Selection(verdicts, scale)
@@ -116,11 +116,6 @@ def select_loops(loops: Sequence[LoopEdge], chain: Chain, settings: LoopSettings
 
 ROUNDS = 5
 """Rounds of measuring the odometry's drift on the loops kept and leaving out the unlikely ones."""
-
-
-def loop_chi2(loop: LoopEdge, chain: Chain, scale: float = 1.0) -> float:
-    """:meth:`Chain.loop_chi2` of a loop edge."""
-    return chain.loop_chi2(loop.source, loop.target, loop.transform, loop.information, scale)
 
 
 def odometry_scale(loops: Sequence[LoopEdge], chain: Chain) -> float:
@@ -133,7 +128,7 @@ def odometry_scale(loops: Sequence[LoopEdge], chain: Chain) -> float:
     target = chi2_gate(0.5, 6)  # chi-square's median on 6 dof
 
     def median_chi2(log_scale: float) -> float:
-        return float(np.median([loop_chi2(loop, chain, math.exp(log_scale)) for loop in loops]))
+        return float(np.median([chain.loop_chi2(loop, math.exp(log_scale)) for loop in loops]))
 
     low, high = math.log(1e-6), math.log(1e4)
     for _ in range(40):  # the distances fall as the scale grows: bisect

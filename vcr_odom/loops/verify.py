@@ -32,7 +32,7 @@ from scipy.spatial import cKDTree
 
 from vcr_odom.errors import DataWarning
 from vcr_odom.geometry import Transform, make_transform, motion_difference, rotation_angle
-from vcr_odom.loops.candidates import Chain, LoopCandidate, chi2_gate
+from vcr_odom.loops.candidates import Chain, LoopCandidate, LoopEdge, chi2_gate
 from vcr_odom.loops.nodes import (
     CLOUD_VOXEL_M,
     Node,
@@ -223,8 +223,9 @@ class LoopVerifier:
         fits = {
             name: polish(source_cloud, target_cloud, start, scale, settings) for name, start in starts.items()
         }
+        ends = candidate.source, candidate.target
         chi2 = {
-            name: self.chain.loop_chi2(candidate.source, candidate.target, fit.transform, fit.information)
+            name: self.chain.loop_chi2(LoopEdge(*ends, fit.transform, fit.information))
             for name, fit in fits.items()
         }
         gate = chi2_gate(settings.odometry_confidence, 6)
