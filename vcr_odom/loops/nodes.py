@@ -90,11 +90,9 @@ class NodeNormals:
 
     def cloud(self, index: int) -> o3d.geometry.PointCloud:
         """Node ``index``'s cloud with its normals, as point-to-plane fits need."""
-        normals = self.normals(index)
-        cloud = o3d.geometry.PointCloud(
-            o3d.utility.Vector3dVector(self.nodes[index].cloud.astype(np.float64))
-        )
-        cloud.normals = o3d.utility.Vector3dVector(normals)
+        points = self.nodes[index].cloud.astype(np.float64)
+        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+        cloud.normals = o3d.utility.Vector3dVector(self.normals(index))
         return cloud
 
 

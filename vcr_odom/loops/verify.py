@@ -200,10 +200,8 @@ class LoopVerifier:
         settings = self.settings
         source, target = nodes[candidate.source], nodes[candidate.target]
         decision = LoopDecision(candidate, source.frame_index, target.frame_index)
-        narrow = (
-            min(azimuth_coverage(source.cloud), azimuth_coverage(target.cloud))
-            < settings.narrow_field_coverage
-        )
+        coverage = min(azimuth_coverage(source.cloud), azimuth_coverage(target.cloud))
+        narrow = coverage < settings.narrow_field_coverage
         turned = math.degrees(float(rotation_angle(candidate.prior[:3, :3])))
         submaps = narrow and turned >= settings.submap_turn_deg
         source_key = self._key(candidate.source, candidate.target, nodes, submaps)
@@ -249,13 +247,12 @@ class LoopVerifier:
             network_input_kept_ground=kept_ground,
         )
         min_overlap = settings.min_overlap_narrow if narrow else settings.min_overlap
+        max_rmse = settings.max_fit_rmse_m * scale
         one_fit = apart_m <= settings.starts_agree_m * scale and apart_deg <= settings.starts_agree_deg
         if fit.fitness < min_overlap:
             decision.reject("overlap", f"rejected: overlap {fit.fitness:.2f} < {min_overlap}")
-        elif fit.rmse > settings.max_fit_rmse_m * scale:
-            decision.reject(
-                "fit_rmse", f"rejected: fit RMSE {fit.rmse:.2f} m > {settings.max_fit_rmse_m * scale:.2f} m"
-            )
+        elif fit.rmse > max_rmse:
+            decision.reject("fit_rmse", f"rejected: fit RMSE {fit.rmse:.2f} m > {max_rmse:.2f} m")
         elif chi2[best] > gate:
             decision.reject(
                 "odometry",
