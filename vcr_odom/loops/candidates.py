@@ -49,12 +49,8 @@ class Chain:
     def between(self, first: tuple[int, int], second: tuple[int, int]) -> NDArray[np.float64]:
         """The world-frame covariance of the edges in one node interval and not the other (two loops'
         corrections share the drift of the edges both span, which cancels)."""
-        a, b = sorted(first), sorted(second)
-        low, high = min(a[0], b[0]), max(a[1], b[1])
-        inner_low, inner_high = max(a[0], b[0]), min(a[1], b[1])
-        if inner_low >= inner_high:  # disjoint: both whole
-            return self.world_covariance(*a) + self.world_covariance(*b)
-        return self.world_covariance(low, inner_low) + self.world_covariance(inner_high, high)
+        ends = sorted((*first, *second))  # the symmetric difference, whether apart, overlapping or nested
+        return self.world_covariance(ends[0], ends[1]) + self.world_covariance(ends[2], ends[3])
 
     def correction(self, loop: LoopEdge) -> NDArray[np.float64]:
         """What a loop asks of the odometry, as a world-frame twist."""
