@@ -1,6 +1,6 @@
 """Ablation of VCR-Net: which part of a registration is the network's, regime by regime.
 
-Why: the pose head (a consensus of random triples and compatible seeds, Cauchy re-weighting, gated
+Why: the pose head (a consensus of random triples and compatible seeds, robust re-weighting, gated
 re-pointing) is RANSAC and ICP in all but name; fed any reasonable correspondences it may register two
 scans by itself. So the same pairs are registered with the head fed by the features of
 

@@ -150,7 +150,7 @@ class VcrConfig(Settings):
     robust_iterations: int = _count(
         5,
         0,
-        "After the paper's SVD, this many re-solves with Cauchy weights 1 / (1 + (r / c)²) of each key "
+        "After the paper's SVD, this many re-solves with robust weights (robust_kernel) of each key "
         "point's residual r, c halving down to robust_scale. Key points without a counterpart in the "
         "other scan get a virtual point somewhere in its cloud, and with full weight they pull the "
         "estimate towards zero motion. 0 = the paper's single unweighted SVD.",
