@@ -16,7 +16,8 @@ registration runs (``--consult``). Without --data-root it generates a 100-frame 
 records resident memory every N frames (``rss_mib_by_frame`` in the JSON).
 
 The per-stage columns come from :mod:`stage_profile` (beside this script): milliseconds per frame in
-load, crop, ground removal, sampling, encoder, registration, polish pre-processing, polish, all of
+load, crop, ground removal, sampling, encoder, self-attention, matching (cross-attention and virtual
+points), pose head, registration (other methods), polish pre-processing, polish, all of
 kiss-icp, and ``other`` (the rest of the wall time: chaining, checks, waiting). Stages that run in
 the producer thread overlap the others, so the columns can add up to more than the wall time. Where
 the sequence has ground truth, each method's end-point drift and SE(3)-aligned ATE are given beside
@@ -174,7 +175,9 @@ MARKDOWN_STAGES = {
     "ground removal": "ground",
     "encoder": "encoder",
     "self-attention": "attention",
-    "registration": "head",
+    "matching": "matching",
+    "pose head": "head",
+    "registration": "registration",
     "polish prepare": "polish prepare",
     "polish": "polish",
     "kiss-icp": "kiss-icp",

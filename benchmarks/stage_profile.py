@@ -8,9 +8,12 @@ the seconds spent in them, per thread and summed, so the library itself holds no
     ground removal    preprocess.remove_ground
     sampling          preprocess.downsample (farthest point sampling)
     encoder           VCRNet.encode
-    self-attention    VCRNet.attend, once per frame when it is prepared (inside a registration, where
-                      a frame comes without it, it counts as registration)
-    registration      VCRNet.register_features; other registrars' register
+    self-attention    VCRNet.attend, once per frame when it is prepared (where a frame comes without
+                      it, matching computes it and it counts as matching)
+    matching          VCRNet.match_features: cross-attention, the feature affinity, key points and
+                      their virtual points
+    pose head         VCRNet.pose_head: consensus, robust re-weighting, gated re-pointing
+    registration      other registrars' register (ICP, FPFH + RANSAC)
     polish prepare    the polish's per-frame cloud (IcpPolish.prepare, KissIcpPolish.prepare)
     polish            IcpPolish / KissIcpPolish: refine, from_prior, finish
     kiss-icp          KissIcpOdometry.step (the baseline, all of it)
@@ -35,6 +38,8 @@ STAGES = (
     "sampling",
     "encoder",
     "self-attention",
+    "matching",
+    "pose head",
     "registration",
     "polish prepare",
     "polish",
@@ -59,7 +64,8 @@ def _targets() -> list[tuple[object, str, str]]:
         (preprocess, "downsample", "sampling"),
         (VCRNet, "encode", "encoder"),
         (VCRNet, "attend", "self-attention"),
-        (VCRNet, "register_features", "registration"),
+        (VCRNet, "match_features", "matching"),
+        (VCRNet, "pose_head", "pose head"),
         (Open3dIcp, "register", "registration"),
         (FpfhRansac, "register", "registration"),
         (IcpPolish, "prepare", "polish prepare"),
