@@ -88,11 +88,5 @@ WIDE+=(--cache "$WORK/wide_kitti_0_40.npz")
 "${PYTHON:-.venv/bin/python}" scripts/set_inference_settings.py "$WORK/finetune/best.safetensors" \
   --set consensus_seeds=32 --set consensus_group=16 --set gated_rounds=3 \
   --note "chosen on OS1-128 old-town seeds 401-403, kitti-sample frames 0-39 and synthetic seeds 201-204" \
-  --out "$WORK/head.safetensors"
-# 7. The re-weighting's kernel, chosen last on OS0 revisit pairs and kitti-sample frames 0-39
-#    (MODEL_CARD.md, "The re-weighting's kernel"): Geman-McClure, final scale 0.1875 m.
-"${PYTHON:-.venv/bin/python}" scripts/set_inference_settings.py "$WORK/head.safetensors" \
-  --set robust_kernel=geman-mcclure --set robust_scale=0.1875 \
-  --note "chosen on OS0 revisit pairs of ablation drives 916-917 and kitti-sample frames 0-39" \
   --out "$WORK/vcr-default.safetensors"
 echo "weights: $WORK/vcr-default.safetensors"
