@@ -259,13 +259,13 @@ def robust_procrustes(
     for two scans around their own sensors means towards zero motion. The robust weights are
     detached (iteratively reweighted least squares): the gradient flows through the last solve.
     """
+    if kernel not in ROBUST_KERNELS:
+        raise ValueError(f"kernel must be one of {', '.join(ROBUST_KERNELS)}; got {kernel!r}")
+    power = 2 if kernel == "geman-mcclure" else 1
     if hypotheses > 0 or seeds > 0:
         rotation, translation = consensus_start(source, target, weights, hypotheses, threshold, seeds, group)
     else:
         rotation, translation = weighted_procrustes(source, target, weights)
-    if kernel not in ROBUST_KERNELS:
-        raise ValueError(f"kernel must be one of {', '.join(ROBUST_KERNELS)}; got {kernel!r}")
-    power = 2 if kernel == "geman-mcclure" else 1
     base = (
         torch.ones(source.shape[:2], dtype=source.dtype, device=source.device) if weights is None else weights
     )
