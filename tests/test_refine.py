@@ -20,7 +20,7 @@ from vcr_odom.geometry import make_transform, normalise_to_first, rotation_from_
 from vcr_odom.metrics import trajectory_pair_errors
 from vcr_odom.odometry import IcpPolish, InitialGuess, KissIcpPolish, Odometry, run_odometry
 from vcr_odom.odometry.factory import build_odometry, canonical_spec, parse_method_spec
-from vcr_odom.odometry.guided_kiss import GuidedKissICP
+from vcr_odom.odometry.guided_kiss import MARKEDLY_WORSE, GuidedKissICP, KissFramePreparer
 from vcr_odom.odometry.outputs import run_summary
 from vcr_odom.odometry.polish import POLISHES
 from vcr_odom.registration import SequentialOdometry, make_method
@@ -317,3 +317,38 @@ def test_a_result_far_from_the_prior_that_a_start_from_standing_still_confirms_i
         assert sum(network_asked(info) for info in run.per_frame_info[1:]) == asked[second_start]
     assert trajectory_pair_errors(runs[True].poses, runs[False].poses).trans_errors_m.max() < 0.05
     assert trajectory_pair_errors(runs[True].poses, gt).trans_errors_m.max() < 0.25
+
+
+def _pole_row(xs: np.ndarray) -> np.ndarray:
+    """Poles 4 m to the side of the sensor at ``xs``: each a ring of points every 0.1 m up to 3 m."""
+    heights = np.arange(0.0, 3.0, 0.1)
+    angles = np.linspace(0.0, 2.0 * np.pi, 8, endpoint=False)
+    pole = np.stack(
+        [
+            np.repeat(0.1 * np.cos(angles), len(heights)),
+            np.repeat(0.1 * np.sin(angles), len(heights)),
+            np.tile(heights, len(angles)),
+        ],
+        axis=1,
+    )
+    return np.concatenate([pole + np.array([x, 4.0, -1.0]) for x in xs])
+
+
+def test_a_start_that_fits_only_a_little_better_does_not_replace_the_predictions_result() -> None:
+    """A row of identical poles 2 m apart whose map missed the frame's last pole (occluded when it was
+    built): the true pose places 10 of the frame's 11 poles, a pose one pole back places all 11. The fit cannot
+    rank the two (a result a period off fits as well on a stretch that repeats itself), so the second
+    start does not replace the first; a pose that places markedly more of the frame than the other does."""
+    spacing = 2.0
+    frame_xs = np.arange(-10.0, 10.1, spacing)
+    map_xs = np.array([x for x in np.arange(-30.0, 30.1, spacing) if x != frame_xs[-1]])
+    guided = GuidedKissICP(kiss_config(), weak_share=0.0)
+    prepare = KissFramePreparer(guided.config)
+    guided.seed(prepare(_pole_row(map_xs)), np.eye(4))
+    source = prepare(_pole_row(frame_xs)).source
+    assert source is not None
+    truth, period_off = np.eye(4), make_transform(np.eye(3), [-spacing, 0.0, 0.0])
+    between_poles = make_transform(np.eye(3), [spacing / 2, 0.0, 0.0])
+    assert not guided._fits_better(source, period_off, than=truth, ratio=MARKEDLY_WORSE)
+    assert guided._fits_better(source, period_off, than=truth, ratio=1.0)  # it does fit a little better
+    assert guided._fits_better(source, truth, than=between_poles, ratio=MARKEDLY_WORSE)

@@ -147,17 +147,21 @@ class GuidedKissICP(KissICP):
             if coarse_voxel > config.mapping.voxel_size
             else None
         )
+        self.motion_known = False
         self.last_sigma = float("nan")
         self.last_source_points = 0
         self.last_weak_axes = 0
 
-    def seed(self, frame: KissFrame, pose: Transform, last_delta: Transform) -> None:
+    def seed(self, frame: KissFrame, pose: Transform, last_delta: Transform | None = None) -> None:
         """Start (or restart) the local map with ``frame`` at ``pose``, without registering it against
-        an empty map; ``last_delta`` is the motion into this frame (the next prediction's velocity)."""
+        an empty map; ``last_delta`` is the motion into this frame (the next prediction's velocity),
+        None where no motion is known yet (the prediction then stands still, on no evidence)."""
         _, downsample = self._voxelized(frame, np.eye(4))
         pose = project_to_se3(pose)
         self._update_maps(downsample, pose)
-        self.last_pose, self.last_delta = pose, project_to_se3(last_delta)
+        self.last_pose = pose
+        self.last_delta = np.eye(4) if last_delta is None else project_to_se3(last_delta)
+        self.motion_known = last_delta is not None
 
     def from_prediction(self, frame: KissFrame, align: bool = True) -> KissAttempt:
         """The frame registered from kiss-icp's constant-velocity prediction (``align=False``: not
@@ -174,8 +178,10 @@ class GuidedKissICP(KissICP):
 
     def finish(self, attempt: KissAttempt, guess: Transform | None = None) -> tuple[Transform, str]:
         """Commit the frame: the prediction's result, or the result from ``guess`` (the frame's pose by
-        the global method) where that fits the local map better. Returns the pose and the start that
-        won (``"prediction"`` or ``"global"``).
+        the global method) where that fits the local map markedly better (:data:`MARKEDLY_WORSE`); the
+        prediction wins the ties because it carries the motion so far, so before any motion is known
+        (a run's first pair) the better fit wins. Returns the pose and the start that won
+        (``"prediction"`` or ``"global"``).
 
         ``guess`` is tried only where the prediction's result lies outside its basin (else it would end
         there too). Fit is open3d's ``evaluate_registration`` fitness within half a map voxel: kiss-icp's
@@ -191,7 +197,8 @@ class GuidedKissICP(KissICP):
                 new_pose, start, start_pose = self.held_align(attempt, guess), "global", guess
             elif not within_basin(new_pose, guess):
                 from_guess = self.held_align(attempt, guess)
-                if self._fits_better(attempt.source, from_guess, new_pose):
+                ratio = MARKEDLY_WORSE if self.motion_known else 1.0
+                if self._fits_better(attempt.source, from_guess, new_pose, ratio):
                     new_pose, start, start_pose = from_guess, "global", guess
         if new_pose is None:
             raise ValueError("finish() needs a guess for an attempt made without the prediction")
@@ -199,6 +206,7 @@ class GuidedKissICP(KissICP):
         self._update_maps(attempt.downsample, new_pose)
         self.last_delta = np.linalg.inv(self.last_pose) @ new_pose
         self.last_pose = new_pose
+        self.motion_known = True
         self.last_sigma = attempt.sigma
         self.last_source_points = len(attempt.source)
         self.last_weak_axes = len(attempt.weak_axes)
@@ -256,8 +264,9 @@ class GuidedKissICP(KissICP):
         if self.coarse_map is not None:
             self.coarse_map.update(voxel_down_sample(downsample, 0.5 * self.coarse_voxel), pose)
 
-    def _fits_better(self, source: np.ndarray, pose: Transform, than: Transform) -> bool:
-        """Whether more of ``source`` lands within half a map voxel of the local map at ``pose``."""
+    def _fits_better(self, source: np.ndarray, pose: Transform, than: Transform, ratio: float) -> bool:
+        """Whether ``than`` lands less than ``ratio`` times the share of ``source`` that ``pose`` lands
+        within half a map voxel of the local map."""
         registration = o3d.pipelines.registration
         distance = 0.5 * self.config.mapping.voxel_size
         source_cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(source)))
@@ -266,7 +275,7 @@ class GuidedKissICP(KissICP):
             registration.evaluate_registration(source_cloud, map_cloud, distance, candidate).fitness
             for candidate in (pose, than)
         ]
-        return bool(fitness[0] > fitness[1])
+        return bool(fitness[1] < ratio * fitness[0])
 
 
 def frame_to_frame_fit(source: np.ndarray, motion: Transform, previous: KissFrame, distance: float) -> float:
@@ -278,6 +287,13 @@ def frame_to_frame_fit(source: np.ndarray, motion: Transform, previous: KissFram
     distances, _ = previous.tree.query(moved, distance_upper_bound=distance)
     return float(np.mean(np.isfinite(distances)))
 
+
+MARKEDLY_WORSE = 0.8
+"""A fit below this share of another's is markedly worse: a wrong result leaves a fifth or more of the
+points the right one places without a partner. Two fits closer than that cannot be ranked by the fit:
+both near-saturated in a stretch that repeats itself, where a result a metre off places every point
+too, or both poor. There the fit gives no reason to leave kiss-icp's own start, so its result stays
+(docs/benchmarks.md, "Which start wins")."""
 
 BASIN_M = 0.5
 BASIN_DEG = 2.0

@@ -40,7 +40,8 @@ POLISHES: dict[str, str] = {
     "icp": "open3d point-to-plane ICP on the two frames, started from the global estimate and from the "
     "last motion: the better fit wins",
     "kiss-icp": "kiss-icp's adaptive-threshold registration to its local map, from its own prediction and, "
-    "where that result disagrees with the global estimate, from the estimate too: the better fit wins",
+    "where that result disagrees with the global estimate, from the estimate too: the estimate's result "
+    "wins where it fits the map markedly better",
 }
 """Polish name -> one-line description (for ``--help`` and error messages)."""
 
@@ -285,7 +286,7 @@ class KissIcpPolish:
     def start(self, frame: KissFrame) -> None:
         """A new map, seeded with the first frame at the identity."""
         self.kiss = self._new_map()
-        self.kiss.seed(frame, np.eye(4), np.eye(4))
+        self.kiss.seed(frame, np.eye(4))
 
     def refine(
         self,
