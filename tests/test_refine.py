@@ -7,7 +7,6 @@ run to run even with a fixed seed (measured: 0.2 m apart after 8 frames), so it 
 
 from __future__ import annotations
 
-import itertools
 import warnings
 from pathlib import Path
 
@@ -21,9 +20,9 @@ from vcr_odom.geometry import make_transform, normalise_to_first, rotation_from_
 from vcr_odom.metrics import trajectory_pair_errors
 from vcr_odom.odometry import IcpPolish, InitialGuess, KissIcpPolish, Odometry, run_odometry
 from vcr_odom.odometry.factory import build_odometry, canonical_spec, parse_method_spec
-from vcr_odom.odometry.guided_kiss import MARKEDLY_WORSE, GuidedKissICP, KissFramePreparer, within_basin
+from vcr_odom.odometry.guided_kiss import MARKEDLY_WORSE, GuidedKissICP, KissFramePreparer
 from vcr_odom.odometry.outputs import run_summary
-from vcr_odom.odometry.polish import POLISHES, SECOND_START_POINTS
+from vcr_odom.odometry.polish import POLISHES
 from vcr_odom.registration import SequentialOdometry, make_method
 from vcr_odom.registration.base import RegistrationResult
 from vcr_odom.registration.kiss import kiss_config
@@ -353,36 +352,3 @@ def test_a_start_that_fits_only_a_little_better_does_not_replace_the_predictions
     assert not guided._fits_better(source, period_off, than=truth, ratio=MARKEDLY_WORSE)
     assert guided._fits_better(source, period_off, than=truth, ratio=1.0)  # it does fit a little better
     assert guided._fits_better(source, truth, than=between_poles, ratio=MARKEDLY_WORSE)
-
-
-def test_the_second_start_runs_on_a_bounded_share_of_a_dense_frame_and_ends_where_the_full_one_does(
-    monkeypatch: pytest.MonkeyPatch,
-) -> None:
-    """An OS1-128 frame on a 0.5 m polish map leaves kiss-icp more registration points than the second
-    start from standing still needs to say which minimum it falls into: it runs on at most
-    SECOND_START_POINTS of them and ends within the basin of the start on all of them."""
-    sequence = SynthSequence(frames=6, seed=401, sensor="os128", speed=10.0, scene="oldtown")
-    polish = KissIcpPolish(voxel_size=0.5)
-    frames = [polish.prepare(sequence.frame(index)) for index in range(len(sequence))]
-    polish.start(frames[0])
-    pose, motion = np.eye(4), np.eye(4)
-    for previous, frame in itertools.pairwise(frames[:-1]):
-        attempt = polish.from_prior(frame, previous, pose=pose, last_motion=motion)
-        motion = polish.finish(attempt, frame, previous, None, pose=pose).motion
-        pose = pose @ motion
-    attempt = polish.from_prior(frames[-1], frames[-2], pose=pose, last_motion=motion)
-    assert len(attempt.state.source) > SECOND_START_POINTS
-
-    sizes: list[int] = []
-    align_to = GuidedKissICP._align_to
-
-    def counted(self: GuidedKissICP, voxel_map: object, source: np.ndarray, *args: object) -> np.ndarray:
-        sizes.append(len(source))
-        return align_to(self, voxel_map, source, *args)
-
-    monkeypatch.setattr(GuidedKissICP, "_align_to", counted)
-    from_rest = polish.from_rest(attempt, frames[-1], frames[-2])
-    assert sizes and max(sizes) <= SECOND_START_POINTS
-    last_pose = polish.kiss.last_pose
-    on_every_point = np.linalg.solve(last_pose, polish.kiss.held_align(attempt.state, last_pose))
-    assert within_basin(from_rest, on_every_point)

@@ -12,7 +12,7 @@ missing if a release moves them, instead of failing mid-run.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 import open3d as o3d
@@ -101,13 +101,6 @@ class KissAttempt:
     weak_axes: np.ndarray
     normals: np.ndarray | None = None
     """Surface normals at ``source`` where the fit is finished point to plane, else None."""
-
-    def thinned(self, budget: int) -> KissAttempt:
-        """The attempt with every k-th registration point (and normal), at most ``budget`` of them:
-        kiss-icp's source is already even on its grid, so a stride keeps it even."""
-        step = max(1, -(-len(self.source) // budget))
-        normals = None if self.normals is None else self.normals[::step]
-        return replace(self, source=self.source[::step], normals=normals)
 
 
 MIN_SOURCE_POINTS = MIN_REGISTRATION_POINTS

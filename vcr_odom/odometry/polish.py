@@ -30,7 +30,7 @@ from vcr_odom.odometry.guided_kiss import (
     motion_difference,
     within_basin,
 )
-from vcr_odom.odometry.polish_voxel import TARGET_SOURCE_POINTS, density_voxel, raw_sparse_scan, with_voxel
+from vcr_odom.odometry.polish_voxel import density_voxel, raw_sparse_scan, with_voxel
 from vcr_odom.registration.base import TOO_FEW_POINTS, RegistrationResult
 from vcr_odom.registration.kiss import kiss_config, kiss_input
 from vcr_odom.registration.open3d_icp import Open3dIcp
@@ -196,13 +196,6 @@ Avia keyframe walk, and a grid coarser than kiss-icp's left a spinning drive's f
 (docs/benchmarks.md, "A coarse stage for far starts")."""
 
 
-SECOND_START_POINTS = TARGET_SOURCE_POINTS
-"""Registration points the second start from standing still runs on, at most: as many as the polish's
-voxel aims a sparse frame at. It only asks which minimum a start far from the prediction falls into,
-and its result is compared, never kept; on OS1-128 keyframes of 4,500 points a frame, the full start
-cost more than the network it saves (docs/benchmarks.md, "A second start before the network")."""
-
-
 def polish_kiss_config() -> KISSConfig:
     """kiss-icp's configuration for the polish: its default, with :data:`POLISH_CONVERGENCE`."""
     return kiss_config(convergence_criterion=POLISH_CONVERGENCE)
@@ -336,11 +329,9 @@ class KissIcpPolish:
 
     def from_rest(self, attempt: PriorAttempt, frame: KissFrame, previous: KissFrame) -> Transform:
         """The relative motion kiss-icp reaches against its map from standing still (the last pose), a
-        second start beside its prediction, on at most :data:`SECOND_START_POINTS` of the frame's
-        registration points; nothing is committed."""
+        second start beside its prediction; nothing is committed."""
         last_pose = self.kiss.last_pose
-        thinned = attempt.state.thinned(SECOND_START_POINTS)
-        return invert(last_pose) @ self.kiss.held_align(thinned, last_pose)
+        return invert(last_pose) @ self.kiss.held_align(attempt.state, last_pose)
 
     def _finished(self, attempt: KissAttempt, guess: Transform | None, pose: Transform) -> PolishResult:
         new_pose, start = self.kiss.finish(attempt, guess)
