@@ -336,9 +336,9 @@ def _pole_row(xs: np.ndarray) -> np.ndarray:
 
 def test_a_start_that_fits_only_a_little_better_does_not_replace_the_predictions_result() -> None:
     """A row of identical poles 2 m apart whose map missed the frame's last pole (occluded when it was
-    built): the true pose places 10 of the frame's 11 poles, a pose one pole back places all 11. The fit cannot
-    rank the two (a result a period off fits as well on a stretch that repeats itself), so the second
-    start does not replace the first; a pose that places markedly more of the frame than the other does."""
+    built): the true pose places 10 of the frame's 11 poles, a pose one pole back places all 11. The
+    fit cannot rank the two (on a stretch that repeats itself a result a period off fits as well), so
+    the second does not replace the first; a pose that places markedly more of the frame does."""
     spacing = 2.0
     frame_xs = np.arange(-10.0, 10.1, spacing)
     map_xs = np.array([x for x in np.arange(-30.0, 30.1, spacing) if x != frame_xs[-1]])

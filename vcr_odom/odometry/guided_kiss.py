@@ -265,8 +265,8 @@ class GuidedKissICP(KissICP):
             self.coarse_map.update(voxel_down_sample(downsample, 0.5 * self.coarse_voxel), pose)
 
     def _fits_better(self, source: np.ndarray, pose: Transform, than: Transform, ratio: float) -> bool:
-        """Whether ``than`` lands less than ``ratio`` times the share of ``source`` that ``pose`` lands
-        within half a map voxel of the local map."""
+        """Whether ``source`` placed at ``than`` has less than ``ratio`` times the share of points within
+        half a map voxel of the local map that it has at ``pose`` (``ratio=1``: any better fit)."""
         registration = o3d.pipelines.registration
         distance = 0.5 * self.config.mapping.voxel_size
         source_cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(source)))
