@@ -96,9 +96,9 @@ ROOM_REACH = 15.0
 frames: 10.6-11.7 m, at least 7.4 m on any frame); its voxel is the reach over :data:`ROOM_CELLS`."""
 
 ROOM_CELLS = 60.0
-"""Cells across a room-scale reach (0.2 m at 12 m). On the indoor tuning walk (seed 901, reach 11.7 m) a
-1 m grid overestimated the path by 13 % (ATE 2.45 m); 40, 50, 60 and 80 cells gave ATE 0.46, 0.26, 0.14
-and 0.14 m, 80 at 1.6 times 60's time (docs/benchmarks.md, "The polish voxel indoors")."""
+"""Cells across a room-scale reach (0.2 m at 12 m): the coarsest grid at which the path through rooms
+stops improving; a finer one costs time for the same accuracy, a 1 m grid overestimates the path
+(the measurements: docs/benchmarks.md, "The polish voxel indoors")."""
 
 STREET_REACH = 30.0
 """A scan reaching this far or more (m) keeps kiss-icp's voxel: the KITTI sample's first frame reaches
@@ -108,7 +108,7 @@ linearly, so a scene near either bound gets nearly the same grid."""
 
 MIN_REACH_VOXEL = 0.1
 """Never finer than this (m), however close the walls: the polish's cost grows with the points a finer
-grid keeps (on walk 901, 80 cells took 1.6 times 60's time for the same ATE)."""
+grid keeps (docs/benchmarks.md, "The polish voxel indoors")."""
 
 
 def reach(points: np.ndarray) -> float:
