@@ -18,7 +18,7 @@ from vcr_odom.cli.main import cli
 from vcr_odom.errors import ConfigError
 from vcr_odom.geometry import invert, make_transform, rotation_from_euler_zyx, twist
 from vcr_odom.loops.candidates import Chain, find_candidates
-from vcr_odom.loops.graph import LoopEdge, consistent_loops, odometry_scale, rotation_walk
+from vcr_odom.loops.graph import LoopEdge, consistent_loops, odometry_scale
 from vcr_odom.loops.nodes import Node
 from vcr_odom.loops.settings import LoopSettings
 
@@ -181,45 +181,6 @@ def test_the_odometry_scale_is_the_factor_its_errors_were_drawn_with(factor: flo
     loops = [LoopEdge(i + 5, i, invert(truth[i]) @ truth[i + 5], EXACT) for i in range(0, count - 6, 6)]
     assert odometry_scale(loops, chain) == pytest.approx(factor, rel=0.2)
     assert odometry_scale([], chain) == 1.0
-
-
-def _wandering(truth: np.ndarray, covariance: np.ndarray, walk: float, rng) -> np.ndarray:
-    """An odometry of ``truth`` whose every edge erred by a draw of ``covariance`` and whose rotation
-    wandered by ``walk`` rad^2 per metre of the edge on top (a frame-to-map odometry's heading drift)."""
-    odometry = [truth[0]]
-    for k in range(len(truth) - 1):
-        motion = invert(truth[k]) @ truth[k + 1]
-        extra = np.zeros((6, 6))
-        extra[:3, :3] = walk * float(np.linalg.norm(motion[:3, 3])) * np.eye(3)
-        error = rng.multivariate_normal(np.zeros(6), covariance + extra)
-        odometry.append(odometry[-1] @ _perturbation(error[None])[0] @ motion)
-    return np.stack(odometry)
-
-
-def test_no_rotation_walk_is_measured_where_the_fits_covariance_explains_the_loops() -> None:
-    rng = np.random.default_rng(2)
-    covariance = np.diag([0.002**2] * 3 + [0.02**2] * 3)
-    count = 150 * 6 + 1
-    truth = _path(rng, count)
-    chain = Chain(_wandering(truth, covariance, 0.0, rng), [np.linalg.inv(covariance)] * (count - 1))
-    loops = [LoopEdge(i + 5, i, invert(truth[i]) @ truth[i + 5], EXACT) for i in range(0, count - 6, 6)]
-    walk = rotation_walk(loops, chain, odometry_scale(loops, chain))
-    assert walk * 4.0 < 0.1 * 0.002**2, "under a tenth of an edge's own rotation variance"
-    assert rotation_walk([], chain, 1.0) == 0.0
-
-
-@pytest.mark.parametrize(("seed", "walk"), [(3, 1e-5), (4, 1e-4)])
-def test_a_wandering_heading_is_measured_by_the_loops(seed: int, walk: float) -> None:
-    """A lap and a half whose fits hold rotation tightly but whose rotation wandered ``walk`` rad^2 per
-    metre: the loops of the second lap measure a walk of that order (their drift also inflates the
-    scale, which absorbs part of it)."""
-    rng = np.random.default_rng(seed)
-    covariance = np.diag([math.radians(0.005) ** 2] * 3 + [0.05**2] * 3)
-    truth, _ = _lap(rng, covariance)
-    chain = Chain(_wandering(truth, covariance, walk, rng), [np.linalg.inv(covariance)] * (len(truth) - 1))
-    loops = [LoopEdge(j, j - 60, invert(truth[j - 60]) @ truth[j], EXACT) for j in range(60, 90, 4)]
-    measured = rotation_walk(loops, chain, odometry_scale(loops, chain))
-    assert 0.4 * walk < measured < 2.5 * walk
 
 
 def _straight_and_back(offset_m: float) -> list[Node]:

@@ -33,40 +33,18 @@ def covariance(information: NDArray[np.float64]) -> NDArray[np.float64]:
     return (vectors / values) @ vectors.T
 
 
-ROTATION = np.diag([1.0, 1.0, 1.0, 0.0, 0.0, 0.0])
-"""A twist covariance's rotation block (open3d's order): a rotation random walk's shape."""
-
-
-def _prefix_sums(steps: list[NDArray[np.float64]]) -> NDArray[np.float64]:
-    return np.concatenate([np.zeros((1, 6, 6)), np.cumsum(np.array(steps).reshape(-1, 6, 6), 0)])
-
-
 class Chain:
-    """The odometry's node poses and each edge's covariance, propagated: the uncertainty between nodes.
-
-    Besides each edge's fit covariance, a rotation random walk of 1 rad^2 per metre of the edge, to be
-    weighed by what the loops measure of it (:func:`~vcr_odom.loops.graph.rotation_walk`)."""
+    """The odometry's node poses and each edge's covariance, propagated: the uncertainty between nodes."""
 
     def __init__(self, poses: NDArray[np.float64], edge_information: list[NDArray[np.float64]]) -> None:
         self.poses = np.asarray(poses, dtype=np.float64)
         steps = [self.edge_covariance(k, info) for k, info in enumerate(edge_information)]
-        self._prefix = _prefix_sums(steps)
-        self.lengths = edge_lengths(self.poses)
-        walks = [
-            length * adjoint(self.poses[k]) @ ROTATION @ adjoint(self.poses[k]).T
-            for k, length in enumerate(self.lengths[: len(edge_information)])
-        ]
-        self._walk_prefix = _prefix_sums(walks)
+        self._prefix = np.concatenate([np.zeros((1, 6, 6)), np.cumsum(np.array(steps).reshape(-1, 6, 6), 0)])
 
     def world_covariance(self, first: int, second: int) -> NDArray[np.float64]:
         """The world-frame covariance the edges from node ``min`` to node ``max`` add to a later node."""
         low, high = sorted((first, second))
         return self._prefix[high] - self._prefix[low]
-
-    def walk_covariance(self, first: int, second: int) -> NDArray[np.float64]:
-        """The same for a rotation random walk of 1 rad^2 per metre of path."""
-        low, high = sorted((first, second))
-        return self._walk_prefix[high] - self._walk_prefix[low]
 
     def between(self, first: tuple[int, int], second: tuple[int, int]) -> NDArray[np.float64]:
         """The world-frame covariance of the edges in one node interval and not the other (two loops'
@@ -86,24 +64,9 @@ class Chain:
     def loop_chi2(self, loop: LoopEdge, scale: float = 1.0) -> float:
         """The squared Mahalanobis distance of what a loop asks of the odometry, under the odometry's
         covariance between its ends times ``scale`` and the loop's own."""
-        return mahalanobis2(self.correction(loop), self.spread(loop, scale))
-
-    def rotation_chi2(self, loop: LoopEdge, scale: float, walk: float) -> float:
-        """The same of the loop's rotation alone (3 dof), with a rotation walk of ``walk`` rad^2 per metre
-        on top of the scaled covariance."""
-        spread = self.spread(loop, scale) + walk * self.walk_covariance(loop.target, loop.source)
-        return mahalanobis2(self.correction(loop)[:3], spread[:3, :3])
-
-    def spread(self, loop: LoopEdge, scale: float) -> NDArray[np.float64]:
-        """The world-frame covariance of a loop's correction: the odometry's between its ends times
-        ``scale``, and the loop's own."""
         own = self.edge_covariance(loop.target, loop.information)
-        return scale * self.world_covariance(loop.target, loop.source) + own
-
-
-def edge_lengths(poses: NDArray[np.float64]) -> NDArray[np.float64]:
-    """The distance between consecutive node poses (m)."""
-    return np.linalg.norm(np.diff(np.asarray(poses)[:, :3, 3], axis=0), axis=1)
+        spread = scale * self.world_covariance(loop.target, loop.source) + own
+        return mahalanobis2(self.correction(loop), spread)
 
 
 def chi2_gate(confidence: float, dof: int) -> float:

@@ -21,15 +21,7 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation, Slerp
 
 from vcr_odom.geometry import adjoint, invert, twist
-from vcr_odom.loops.candidates import (
-    ROTATION,
-    Chain,
-    LoopEdge,
-    chi2_gate,
-    covariance,
-    edge_lengths,
-    mahalanobis2,
-)
+from vcr_odom.loops.candidates import Chain, LoopEdge, chi2_gate, mahalanobis2
 from vcr_odom.loops.gravity import UpPriors
 from vcr_odom.loops.settings import LoopSettings
 
@@ -145,56 +137,24 @@ def odometry_scale(loops: Sequence[LoopEdge], chain: Chain) -> float:
     return math.exp(0.5 * (low + high))
 
 
-def rotation_walk(loops: Sequence[LoopEdge], chain: Chain, scale: float) -> float:
-    """The rotation random walk (rad^2 per metre of path) the odometry needs beside its covariance times
-    ``scale`` for the loops' rotations to be as likely as their three dimensions say (the median
-    squared Mahalanobis distance chi-square's median on 3 dof); 0 where the scale explains them.
-
-    Why: a fit's information holds rotation tightly (far points give it a long lever), but a
-    frame-to-map odometry's heading and tilt wander with the path in a way no pair's fit sees. Scaled
-    as one, the odometry's covariance keeps the fits' rotation-to-translation ratio, and the graph
-    puts a heading error into positions; the loops' rotations measure how far it wandered."""
-    if not loops:
-        return 0.0
-    target = chi2_gate(0.5, 3)
-
-    def median_chi2(walk: float) -> float:
-        return float(np.median([chain.rotation_chi2(loop, scale, walk) for loop in loops]))
-
-    if median_chi2(0.0) <= target:
-        return 0.0
-    low, high = math.log(1e-12), 0.0
-    for _ in range(60):  # the distances fall as the walk grows: bisect
-        middle = 0.5 * (low + high)
-        low, high = (middle, high) if median_chi2(math.exp(middle)) > target else (low, middle)
-    return math.exp(0.5 * (low + high))
-
-
 def optimise(
     node_poses: NDArray[np.float64],
     odometry_information: Sequence[NDArray[np.float64]],
     loops: Sequence[LoopEdge],
     up: UpPriors | None = None,
     scale: float = 1.0,
-    walk: float = 0.0,
 ) -> NDArray[np.float64]:
-    """Node poses after optimisation (the odometry's covariance times ``scale``, plus a rotation walk
-    of ``walk`` rad^2 per metre: :func:`rotation_walk`); without loops, the odometry's, untouched."""
+    """Node poses after optimisation (the odometry's covariance times ``scale``); without loops, the
+    odometry's, untouched."""
     if not loops:
         return np.array(node_poses, copy=True)
     registration = o3d.pipelines.registration
     graph = registration.PoseGraph()
     for pose in node_poses:
         graph.nodes.append(registration.PoseGraphNode(pose))
-    lengths = edge_lengths(node_poses)
     for k, information in enumerate(odometry_information):
         motion = invert(node_poses[k]) @ node_poses[k + 1]
-        if walk > 0.0:
-            weight = np.linalg.inv(scale * covariance(information) + walk * lengths[k] * ROTATION)
-            information = 0.5 * (weight + weight.T)
-        else:
-            information = information / scale
-        graph.edges.append(registration.PoseGraphEdge(k + 1, k, motion, information, uncertain=False))
+        graph.edges.append(registration.PoseGraphEdge(k + 1, k, motion, information / scale, uncertain=False))
     for edge in [*loops, *([] if up is None else up.edges)]:
         graph.edges.append(
             registration.PoseGraphEdge(

@@ -15,14 +15,7 @@ from typing import Any
 import numpy as np
 
 from vcr_odom.loops.candidates import Chain, find_candidates
-from vcr_odom.loops.graph import (
-    LoopEdge,
-    correct_frames,
-    optimise,
-    residual_chi2,
-    rotation_walk,
-    select_loops,
-)
+from vcr_odom.loops.graph import LoopEdge, correct_frames, optimise, residual_chi2, select_loops
 from vcr_odom.loops.gravity import up_priors
 from vcr_odom.loops.nodes import Node, NodeNormals
 from vcr_odom.loops.settings import LoopSettings
@@ -75,9 +68,6 @@ class ClosedLoops:
     ground_up: dict[str, Any]
     odometry_scale: float = 1.0
     """The factor the loops measured on the odometry's covariance (:func:`~vcr_odom.loops.graph.odometry_scale`)."""
-    rotation_walk: float = 0.0
-    """The rotation random walk the loops measured beside it, rad^2 per metre
-    (:func:`~vcr_odom.loops.graph.rotation_walk`)."""
 
 
 def close_loops(
@@ -118,8 +108,7 @@ def close_loops(
     kept = [(d, edge) for d, edge in zip(measured, edges, strict=True) if d.accepted]
     kept_edges = [edge for _, edge in kept]
     up = up_priors(nodes, normals, settings) if kept_edges else None
-    walk = rotation_walk(kept_edges, chain, selection.odometry_scale)
-    after = optimise(node_poses, edge_information, kept_edges, up, selection.odometry_scale, walk)
+    after = optimise(node_poses, edge_information, kept_edges, up, selection.odometry_scale)
     for decision, edge in kept:
         decision.extra["graph_chi2"] = round(residual_chi2(after, edge), 3)
     if kept_edges:
@@ -128,7 +117,7 @@ def close_loops(
         poses = np.array(odometry_poses, copy=True)
     phase.seconds["graph"] = time.perf_counter() - started
     up_summary = {"used": False} if up is None else up.to_dict()
-    return ClosedLoops(decisions, poses, up_summary, selection.odometry_scale, walk)
+    return ClosedLoops(decisions, poses, up_summary, selection.odometry_scale)
 
 
 def loops_json(decisions: list[LoopDecision], nodes: list[Node]) -> dict[str, Any]:
