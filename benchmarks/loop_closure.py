@@ -76,16 +76,13 @@ def loop_error(
 def candidates_against_truth(
     gt: np.ndarray, frame_indices: list[int], loops: dict[str, Any]
 ) -> list[dict[str, Any]]:
-    """Every candidate of ``loops`` (as loops.json holds it) with its verdict and how far its measured
-    transform, where there is one, and the odometry's are from the truth: why a revisit stayed open,
-    or which check a false fit passed."""
+    """Every candidate of ``loops`` (as loops.json holds it: its verdict and the verification's scores,
+    without the transforms) with how far its measured transform, where there is one, and the odometry's
+    are from the truth: why a revisit stayed open, or which check a false fit passed."""
     frame_position = {f: k for k, f in enumerate(frame_indices)}
     rows = []
     for loop in loops["candidates"]:
-        row = {
-            key: loop.get(key)
-            for key in ("source_frame", "target_frame", "accepted", "failed_check", "reason")
-        }
+        row = {key: value for key, value in loop.items() if not key.endswith("_T_target_source")}
         row["odometry_error_m"], row["odometry_error_deg"] = (
             round(value, 3) for value in loop_error(gt, frame_position, loop, "odometry_T_target_source")
         )
