@@ -18,8 +18,14 @@ from vcr_odom.cli.main import cli
 from vcr_odom.errors import ConfigError
 from vcr_odom.geometry import invert, make_transform, rotation_from_euler_zyx, twist
 from vcr_odom.loops.candidates import Chain, find_candidates
-from vcr_odom.loops.graph import LoopEdge, consistent_loops, odometry_scale
-from vcr_odom.loops.nodes import Node
+from vcr_odom.loops.graph import (
+    LoopEdge,
+    consistent_loops,
+    odometry_scale,
+    select_loops,
+    with_submap_drift,
+)
+from vcr_odom.loops.nodes import Node, submap_members
 from vcr_odom.loops.settings import LoopSettings
 
 EXACT = np.diag([1e8] * 3 + [1e8] * 3)
@@ -151,8 +157,8 @@ def test_consistent_loops_keep_the_loops_that_agree_and_leave_out_a_look_alike()
     false = LoopEdge(75, 15, block_away @ invert(truth[15]) @ truth[75], EXACT)
     for position in (0, 3, len(right)):
         loops = [*right[:position], false, *right[position:]]
-        kept, distances = consistent_loops(loops, chain, 0.999)
-        assert kept == [loop is not false for loop in loops]
+        kept, contested, distances = consistent_loops(loops, chain, 0.999)
+        assert kept == [loop is not false for loop in loops] and contested == kept
         gate = chi2.ppf(0.999, 6)
         rights = [k for k, loop in enumerate(loops) if loop is not false]
         assert (distances[np.ix_(rights, rights)] <= gate).all()
@@ -160,8 +166,28 @@ def test_consistent_loops_keep_the_loops_that_agree_and_leave_out_a_look_alike()
         assert np.allclose(distances, distances.T) and np.all(np.diag(distances) == 0)
     # the odometry itself, asked nothing: two loops that agree with it are consistent
     odometry_loops = [LoopEdge(j, j - 60, invert(odometry[j - 60]) @ odometry[j], EXACT) for j in (62, 70)]
-    kept, distances = consistent_loops(odometry_loops, chain, 0.999)
+    kept, _, distances = consistent_loops(odometry_loops, chain, 0.999)
     assert kept == [True, True] and distances[0, 1] < 1e-6
+
+
+def test_two_equally_large_sets_that_disagree_keep_neither_and_the_loops_both_hold_stay() -> None:
+    """A right loop and a look-alike alone: nothing says which is right, so neither is kept (keeping the
+    first would be a coin toss); loops every largest set holds stay."""
+    rng = np.random.default_rng(1)
+    covariance = np.diag([math.radians(0.05) ** 2] * 3 + [0.03**2] * 3)
+    truth, odometry = _lap(rng, covariance)
+    chain = Chain(odometry, [np.linalg.inv(covariance)] * (len(odometry) - 1))
+    right = LoopEdge(80, 20, invert(truth[20]) @ truth[80], EXACT)
+    false = LoopEdge(75, 15, make_transform(np.eye(3), [12.0, 0, 0]) @ invert(truth[15]) @ truth[75], EXACT)
+    for loops in ([right, false], [false, right]):
+        kept, contested, _ = consistent_loops(loops, chain, 0.999)
+        assert kept == [False, False] and contested == [True, True]
+        verdicts = select_loops(loops, chain, LoopSettings()).verdicts
+        assert all(v is not None and v[0] == "inconsistent" for v in verdicts)
+    # two more right loops make the right set the largest: the look-alike alone is left out
+    more = [LoopEdge(j, j - 60, invert(truth[j - 60]) @ truth[j], EXACT) for j in (70, 86)]
+    kept, _, _ = consistent_loops([false, right, *more], chain, 0.999)
+    assert kept == [False, True, True, True]
 
 
 @pytest.mark.parametrize("factor", [0.25, 4.0])
@@ -204,6 +230,25 @@ def _translation_chain(nodes: list[Node], sigma_m: float) -> Chain:
     position covariance between two nodes is then (edges between) x sigma^2, whatever the path."""
     info = np.diag([1e14] * 3 + [sigma_m**-2] * 3)
     return Chain(np.stack([node.pose for node in nodes]), [info] * (len(nodes) - 1))
+
+
+def test_a_submap_loop_weighs_no_more_than_the_odometry_that_placed_its_submaps() -> None:
+    """Edges uncertain by 5 cm each in translation only: a member k edges from its node is placed
+    within k x (5 cm)^2 of variance, and a submap fit holds its node no better than its members' mean."""
+    nodes = _straight_and_back(2.0)
+    chain = _translation_chain(nodes, 0.05)
+    source, target = 70, 10  # the way back passes the way out
+    fit = np.diag([1e4] * 3 + [100.0] * 3)
+    loop = LoopEdge(source, target, invert(nodes[target].pose) @ nodes[source].pose, fit)
+    assert np.allclose(with_submap_drift(loop, nodes, chain, 30.0, 0.0).information, fit)
+    weighed = np.linalg.inv(with_submap_drift(loop, nodes, chain, 30.0, 2.0).information)
+    members = [submap_members(nodes, a, b, 30.0) for a, b in ((source, target), (target, source))]
+    mean_edges = sum(
+        np.mean([abs(m - c) for m in group]) for c, group in zip((source, target), members, strict=True)
+    )
+    assert mean_edges > 5  # each submap spans about 10 edges either side
+    assert np.allclose(weighed[3:, 3:], (0.01 + 2.0 * 0.05**2 * mean_edges) * np.eye(3), atol=1e-6)
+    assert np.allclose(weighed[:3, :3], 1e-4 * np.eye(3), atol=1e-8)
 
 
 def test_candidates_are_gated_by_the_odometrys_propagated_uncertainty() -> None:

@@ -5,12 +5,14 @@ ICRA 2018). A false loop asks for a correction no right loop agrees with; right 
 other, whatever the odometry's drift, since the drift they correct is shared.
 
 The solve (:func:`optimise`): odometry edges and loops weighted by what each measured
-(:func:`~vcr_odom.loops.verify.fit_information`), the gravity priors, open3d's Levenberg-Marquardt.
+(:func:`~vcr_odom.loops.verify.fit_information`; a submap loop also by its submaps' own drift,
+:func:`with_submap_drift`), the gravity priors, open3d's Levenberg-Marquardt.
 Where no loop is kept the odometry is returned untouched: the priors alone do not move it.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -21,15 +23,18 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation, Slerp
 
 from vcr_odom.geometry import adjoint, invert, twist
-from vcr_odom.loops.candidates import Chain, LoopEdge, chi2_gate, mahalanobis2
+from vcr_odom.loops.candidates import Chain, LoopEdge, chi2_gate, covariance, mahalanobis2
 from vcr_odom.loops.gravity import UpPriors
+from vcr_odom.loops.nodes import Node, submap_members
 from vcr_odom.loops.settings import LoopSettings
 
 
 def consistent_loops(
     loops: Sequence[LoopEdge], chain: Chain, confidence: float
-) -> tuple[list[bool], NDArray]:
-    """Per loop, whether it is in the largest mutually consistent set, and each pair's squared
+) -> tuple[list[bool], list[bool], NDArray]:
+    """Per loop, whether every largest mutually consistent set holds it, whether some largest set does
+    (where two equally large sets disagree, the loops cannot say which is right: PCM's premise, that
+    right loops outnumber any set of false ones that agree, decides nothing), and each pair's squared
     Mahalanobis distance (the cycle's misclosure under its uncertainty: the odometry edges one loop
     spans and the other does not, and both loops' own)."""
     count = len(loops)
@@ -43,25 +48,24 @@ def consistent_loops(
             distances[a, b] = distances[b, a] = mahalanobis2(corrections[a] - corrections[b], spread)
     gate = chi2_gate(confidence, 6)
     neighbours = [{b for b in range(count) if b != a and distances[a, b] <= gate} for a in range(count)]
-    best = _maximum_clique(neighbours, distances)
-    return [k in best for k in range(count)], distances
+    largest = _maximum_cliques(neighbours)
+    in_every = set.intersection(*largest) if largest else set()
+    in_some = set.union(*largest) if largest else set()
+    return [k in in_every for k in range(count)], [k in in_some for k in range(count)], distances
 
 
-def _maximum_clique(neighbours: list[set[int]], distances: NDArray) -> set[int]:
-    """The largest clique (Bron-Kerbosch with pivoting); among equally large ones, the one whose pairs
-    agree best (the smallest sum of distances)."""
-    best: list[set[int]] = [set()]
-
-    def rank(clique: set[int]) -> tuple[int, float]:
-        members = sorted(clique)
-        return len(members), -float(distances[np.ix_(members, members)].sum())
+def _maximum_cliques(neighbours: list[set[int]]) -> list[set[int]]:
+    """Every largest clique (Bron-Kerbosch with pivoting)."""
+    best: list[set[int]] = []
 
     def expand(clique: set[int], candidates: set[int], excluded: set[int]) -> None:
         if not candidates and not excluded:
-            if rank(clique) > rank(best[0]):
-                best[0] = set(clique)
+            if not best or len(clique) > len(best[0]):
+                best[:] = [set(clique)]
+            elif len(clique) == len(best[0]):
+                best.append(set(clique))
             return
-        if len(clique) + len(candidates) < len(best[0]):
+        if best and len(clique) + len(candidates) < len(best[0]):
             return
         pivot = max(candidates | excluded, key=lambda v: len(neighbours[v] & candidates))
         for vertex in list(candidates - neighbours[pivot]):
@@ -69,8 +73,9 @@ def _maximum_clique(neighbours: list[set[int]], distances: NDArray) -> set[int]:
             candidates = candidates - {vertex}
             excluded = excluded | {vertex}
 
-    expand(set(), set(range(len(neighbours))), set())
-    return best[0]
+    if neighbours:
+        expand(set(), set(range(len(neighbours))), set())
+    return best
 
 
 @dataclass
@@ -86,12 +91,17 @@ def select_loops(loops: Sequence[LoopEdge], chain: Chain, settings: LoopSettings
     """The largest mutually consistent set (:func:`consistent_loops`), then, in rounds, the odometry's
     drift measured by the loops kept (:func:`odometry_scale`) and every loop whose correction that drift
     makes unlikely (``odometry_confidence``) left out: a look-alike place the fit information allowed."""
-    consistent, distances = consistent_loops(loops, chain, settings.pairwise_confidence)
+    consistent, contested, distances = consistent_loops(loops, chain, settings.pairwise_confidence)
     pairwise = chi2_gate(settings.pairwise_confidence, 6)
     verdicts: list[tuple[str, str] | None] = [None] * len(loops)
     members = [k for k in range(len(loops)) if consistent[k]]
     for k in range(len(loops)):
-        if not consistent[k]:
+        if contested[k] and not consistent[k]:
+            verdicts[k] = (
+                "inconsistent",
+                "rejected: an equally large set of loops that disagrees with its own is as likely",
+            )
+        elif not consistent[k]:
             misclosed = sum(distances[k, b] > pairwise for b in members)
             verdicts[k] = (
                 "inconsistent",
@@ -135,6 +145,22 @@ def odometry_scale(loops: Sequence[LoopEdge], chain: Chain) -> float:
         middle = 0.5 * (low + high)
         low, high = (middle, high) if median_chi2(middle) > target else (low, middle)
     return math.exp(0.5 * (low + high))
+
+
+def with_submap_drift(
+    loop: LoopEdge, nodes: Sequence[Node], chain: Chain, half_path_m: float, scale: float
+) -> LoopEdge:
+    """A loop measured on submaps, weighed by its fit and by the odometry's drift inside its two
+    submaps (their members' mean covariance to their node, times the drift factor the loops measured):
+    their points were placed by that odometry, so the fit holds the two nodes no better than the
+    submaps are rigid."""
+    drift = np.zeros((6, 6))
+    for index, other in ((loop.source, loop.target), (loop.target, loop.source)):
+        members = submap_members(nodes, index, other, half_path_m)
+        drift += np.mean([chain.world_covariance(index, member) for member in members], axis=0)
+    to_target = adjoint(invert(chain.poses[loop.target]))
+    own = covariance(loop.information) + scale * to_target @ drift @ to_target.T
+    return dataclasses.replace(loop, information=np.linalg.inv(0.5 * (own + own.T)))
 
 
 def optimise(
