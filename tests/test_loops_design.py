@@ -23,9 +23,8 @@ from vcr_odom.loops.graph import (
     consistent_loops,
     odometry_scale,
     select_loops,
-    with_submap_drift,
 )
-from vcr_odom.loops.nodes import Node, submap_members
+from vcr_odom.loops.nodes import Node
 from vcr_odom.loops.settings import LoopSettings
 
 EXACT = np.diag([1e8] * 3 + [1e8] * 3)
@@ -230,25 +229,6 @@ def _translation_chain(nodes: list[Node], sigma_m: float) -> Chain:
     position covariance between two nodes is then (edges between) x sigma^2, whatever the path."""
     info = np.diag([1e14] * 3 + [sigma_m**-2] * 3)
     return Chain(np.stack([node.pose for node in nodes]), [info] * (len(nodes) - 1))
-
-
-def test_a_submap_loop_weighs_no_more_than_the_odometry_that_placed_its_submaps() -> None:
-    """Edges uncertain by 5 cm each in translation only: a member k edges from its node is placed
-    within k x (5 cm)^2 of variance, and a submap fit holds its node no better than its members' mean."""
-    nodes = _straight_and_back(2.0)
-    chain = _translation_chain(nodes, 0.05)
-    source, target = 70, 10  # the way back passes the way out
-    fit = np.diag([1e4] * 3 + [100.0] * 3)
-    loop = LoopEdge(source, target, invert(nodes[target].pose) @ nodes[source].pose, fit)
-    assert np.allclose(with_submap_drift(loop, nodes, chain, 30.0, 0.0).information, fit)
-    weighed = np.linalg.inv(with_submap_drift(loop, nodes, chain, 30.0, 2.0).information)
-    members = [submap_members(nodes, a, b, 30.0) for a, b in ((source, target), (target, source))]
-    mean_edges = sum(
-        np.mean([abs(m - c) for m in group]) for c, group in zip((source, target), members, strict=True)
-    )
-    assert mean_edges > 5  # each submap spans about 10 edges either side
-    assert np.allclose(weighed[3:, 3:], (0.01 + 2.0 * 0.05**2 * mean_edges) * np.eye(3), atol=1e-6)
-    assert np.allclose(weighed[:3, :3], 1e-4 * np.eye(3), atol=1e-8)
 
 
 def test_candidates_are_gated_by_the_odometrys_propagated_uncertainty() -> None:

@@ -5,14 +5,12 @@ ICRA 2018). A false loop asks for a correction no right loop agrees with; right 
 other, whatever the odometry's drift, since the drift they correct is shared.
 
 The solve (:func:`optimise`): odometry edges and loops weighted by what each measured
-(:func:`~vcr_odom.loops.verify.fit_information`; a submap loop also by its submaps' own drift,
-:func:`with_submap_drift`), the gravity priors, open3d's Levenberg-Marquardt.
+(:func:`~vcr_odom.loops.verify.fit_information`), the gravity priors, open3d's Levenberg-Marquardt.
 Where no loop is kept the odometry is returned untouched: the priors alone do not move it.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -23,9 +21,8 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation, Slerp
 
 from vcr_odom.geometry import adjoint, invert, twist
-from vcr_odom.loops.candidates import Chain, LoopEdge, chi2_gate, covariance, mahalanobis2
+from vcr_odom.loops.candidates import Chain, LoopEdge, chi2_gate, mahalanobis2
 from vcr_odom.loops.gravity import UpPriors
-from vcr_odom.loops.nodes import Node, submap_members
 from vcr_odom.loops.settings import LoopSettings
 
 
@@ -145,22 +142,6 @@ def odometry_scale(loops: Sequence[LoopEdge], chain: Chain) -> float:
         middle = 0.5 * (low + high)
         low, high = (middle, high) if median_chi2(middle) > target else (low, middle)
     return math.exp(0.5 * (low + high))
-
-
-def with_submap_drift(
-    loop: LoopEdge, nodes: Sequence[Node], chain: Chain, half_path_m: float, scale: float
-) -> LoopEdge:
-    """A loop measured on submaps, weighed by its fit and by the odometry's drift inside its two
-    submaps (their members' mean covariance to their node, times the drift factor the loops measured):
-    their points were placed by that odometry, so the fit holds the two nodes no better than the
-    submaps are rigid."""
-    drift = np.zeros((6, 6))
-    for index, other in ((loop.source, loop.target), (loop.target, loop.source)):
-        members = submap_members(nodes, index, other, half_path_m)
-        drift += np.mean([chain.world_covariance(index, member) for member in members], axis=0)
-    to_target = adjoint(invert(chain.poses[loop.target]))
-    own = covariance(loop.information) + scale * to_target @ drift @ to_target.T
-    return dataclasses.replace(loop, information=np.linalg.inv(0.5 * (own + own.T)))
 
 
 def optimise(

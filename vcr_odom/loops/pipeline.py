@@ -15,14 +15,7 @@ from typing import Any
 import numpy as np
 
 from vcr_odom.loops.candidates import Chain, find_candidates
-from vcr_odom.loops.graph import (
-    LoopEdge,
-    correct_frames,
-    optimise,
-    residual_chi2,
-    select_loops,
-    with_submap_drift,
-)
+from vcr_odom.loops.graph import LoopEdge, correct_frames, optimise, residual_chi2, select_loops
 from vcr_odom.loops.gravity import up_priors
 from vcr_odom.loops.nodes import Node, NodeNormals
 from vcr_odom.loops.settings import LoopSettings
@@ -112,11 +105,7 @@ def close_loops(
             decision.reject(*verdict)
     phase.seconds["loops"] = time.perf_counter() - started
     started = time.perf_counter()
-    kept = [
-        (d, _weighed(edge, d, nodes, chain, settings, selection.odometry_scale))
-        for d, edge in zip(measured, edges, strict=True)
-        if d.accepted
-    ]
+    kept = [(d, edge) for d, edge in zip(measured, edges, strict=True) if d.accepted]
     kept_edges = [edge for _, edge in kept]
     up = up_priors(nodes, normals, settings) if kept_edges else None
     after = optimise(node_poses, edge_information, kept_edges, up, selection.odometry_scale)
@@ -129,20 +118,6 @@ def close_loops(
     phase.seconds["graph"] = time.perf_counter() - started
     up_summary = {"used": False} if up is None else up.to_dict()
     return ClosedLoops(decisions, poses, up_summary, selection.odometry_scale)
-
-
-def _weighed(
-    edge: LoopEdge,
-    decision: LoopDecision,
-    nodes: list[Node],
-    chain: Chain,
-    settings: LoopSettings,
-    scale: float,
-) -> LoopEdge:
-    """A kept loop as the graph weighs it (a submap loop with its submaps' drift)."""
-    if decision.scores is None or not decision.scores.submaps:
-        return edge
-    return with_submap_drift(edge, nodes, chain, settings.submap_half_path_m, scale)
 
 
 def loops_json(decisions: list[LoopDecision], nodes: list[Node]) -> dict[str, Any]:
