@@ -18,12 +18,7 @@ from vcr_odom.cli.main import cli
 from vcr_odom.errors import ConfigError
 from vcr_odom.geometry import invert, make_transform, rotation_from_euler_zyx, twist
 from vcr_odom.loops.candidates import Chain, find_candidates
-from vcr_odom.loops.graph import (
-    LoopEdge,
-    consistent_loops,
-    odometry_scale,
-    select_loops,
-)
+from vcr_odom.loops.graph import LoopEdge, consistent_loops, odometry_scale, select_loops
 from vcr_odom.loops.nodes import Node
 from vcr_odom.loops.settings import LoopSettings
 
