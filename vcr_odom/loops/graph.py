@@ -85,7 +85,8 @@ class Selection:
 
 
 def select_loops(loops: Sequence[LoopEdge], chain: Chain, settings: LoopSettings) -> Selection:
-    """The largest mutually consistent set (:func:`consistent_loops`), then, in rounds, the odometry's
+    """The largest mutually consistent set (:func:`consistent_loops`; where equally large sets disagree,
+    only the loops all of them hold), then, in rounds, the odometry's
     drift measured by the loops kept (:func:`odometry_scale`) and every loop whose correction that drift
     makes unlikely (``odometry_confidence``) left out: a look-alike place the fit information allowed."""
     consistent, contested, distances = consistent_loops(loops, chain, settings.pairwise_confidence)
