@@ -18,7 +18,7 @@ from vcr_odom.cli.main import cli
 from vcr_odom.errors import ConfigError
 from vcr_odom.geometry import invert, make_transform, rotation_from_euler_zyx, twist
 from vcr_odom.loops.candidates import Chain, find_candidates
-from vcr_odom.loops.graph import LoopEdge, consistent_loops, odometry_scale, select_loops
+from vcr_odom.loops.graph import LoopEdge, consistent_loops, odometry_scale, optimise, select_loops
 from vcr_odom.loops.nodes import Node
 from vcr_odom.loops.settings import LoopSettings
 
@@ -182,6 +182,26 @@ def test_two_equally_large_sets_that_disagree_keep_neither_and_the_loops_both_ho
     more = [LoopEdge(j, j - 60, invert(truth[j - 60]) @ truth[j], EXACT) for j in (70, 86)]
     kept, _, _ = consistent_loops([false, right, *more], chain, 0.999)
     assert kept == [False, True, True, True]
+
+
+def test_the_graph_weighs_each_loop_along_the_axes_its_fit_measured_in_the_earlier_nodes_frame() -> None:
+    """Two loops onto node 0 (a fit's information is on the target's frame) that each hold one
+    direction well, with node 1 turned a quarter: the solve lands on their information-weighted mean,
+    the closed form for loops that differ only in translation."""
+    turned = make_transform(rotation_from_euler_zyx(math.pi / 2, 0.0, 0.0), [5.0, 0.0, 0.0])
+    holds_x = np.diag([1e4] * 3 + [1e4, 1.0, 1e4])
+    holds_y = np.diag([1e4] * 3 + [1.0, 1e4, 1e4])
+    measured = {"x": (5.0, 0.0, 0.0), "y": (6.0, 1.0, 0.0)}
+    loops = [
+        LoopEdge(1, 0, make_transform(turned[:3, :3], measured[axis]), held)
+        for axis, held in (("x", holds_x), ("y", holds_y))
+    ]
+    odometry_free = [np.eye(6) * 1e-9]
+    after = optimise(np.stack([np.eye(4), turned]), odometry_free, loops)
+    weights = holds_x[3:, 3:] + holds_y[3:, 3:]
+    expected = np.linalg.solve(weights, holds_x[3:, 3:] @ measured["x"] + holds_y[3:, 3:] @ measured["y"])
+    assert np.allclose(after[1][:3, 3], expected, atol=1e-3), (after[1][:3, 3], expected)
+    assert np.allclose(after[1][:3, :3], turned[:3, :3], atol=1e-6)
 
 
 @pytest.mark.parametrize("factor", [0.25, 4.0])

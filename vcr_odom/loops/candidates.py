@@ -98,7 +98,9 @@ class LoopCandidate:
 @dataclass(frozen=True)
 class LoopEdge:
     """A loop, or a gravity prior (:func:`~vcr_odom.loops.gravity.up_priors`): ``transform`` is
-    ``T_target_source``, ``information`` open3d's (the target's frame)."""
+    ``T_target_source``, ``information`` on a left perturbation in the target's frame (open3d's order:
+    rotation, translation), as a fit measures it; :func:`~vcr_odom.loops.graph.optimise` moves it to
+    the source's frame, where open3d reads it."""
 
     source: int
     target: int

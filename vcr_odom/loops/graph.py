@@ -160,13 +160,14 @@ def optimise(
     graph = registration.PoseGraph()
     for pose in node_poses:
         graph.nodes.append(registration.PoseGraphNode(pose))
-    for k, information in enumerate(odometry_information):
-        motion = invert(node_poses[k]) @ node_poses[k + 1]
-        graph.edges.append(registration.PoseGraphEdge(k + 1, k, motion, information / scale, uncertain=False))
-    for edge in [*loops, *([] if up is None else up.edges)]:
+    odometry = [
+        LoopEdge(k + 1, k, invert(node_poses[k]) @ node_poses[k + 1], information / scale)
+        for k, information in enumerate(odometry_information)
+    ]
+    for edge in [*odometry, *loops, *([] if up is None else up.edges)]:
         graph.edges.append(
             registration.PoseGraphEdge(
-                edge.source, edge.target, edge.transform, edge.information, uncertain=False
+                edge.source, edge.target, edge.transform, source_frame_information(edge), uncertain=False
             )
         )
     option = registration.GlobalOptimizationOption(
@@ -182,10 +183,17 @@ def optimise(
     return np.stack([np.asarray(node.pose) for node in graph.nodes])
 
 
+def source_frame_information(edge: LoopEdge) -> NDArray[np.float64]:
+    """The edge's information (the target's frame, as a fit measures it) in its source's frame, where
+    open3d's pose graph reads it: its error is ``X^-1 T_target^-1 T_source``, a twist of the source."""
+    lever = adjoint(edge.transform)
+    return lever.T @ edge.information @ lever
+
+
 def residual_chi2(poses: NDArray[np.float64], loop: LoopEdge) -> float:
     """``r^T I r`` of a loop under ``poses`` (how far the solved graph is from what it measured)."""
     error = invert(loop.transform) @ invert(poses[loop.target]) @ poses[loop.source]
-    # the information is open3d's (a left perturbation in the target's frame): move the error there
+    # the information is on a left perturbation in the target's frame: move the error there
     residual = adjoint(loop.transform) @ twist(error)
     return float(residual @ loop.information @ residual)
 

@@ -22,7 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from vcr_odom.geometry import invert
+from vcr_odom.geometry import adjoint, invert
 from vcr_odom.loops.candidates import LoopEdge
 from vcr_odom.loops.nodes import Node, NodeNormals
 from vcr_odom.loops.settings import LoopSettings
@@ -206,9 +206,11 @@ def _priors(
         rotation = nodes[k].pose[:3, :3]
         wanted = nodes[k].pose.copy()
         wanted[:3, :3] = Rotation.from_rotvec(_rotation_vector(rotation @ node_up, up)).as_matrix() @ rotation
-        edge_information = np.zeros((6, 6))
-        edge_information[:3, :3] = information
-        priors.append(LoopEdge(k, 0, first_inverse @ wanted, edge_information))
+        transform = first_inverse @ wanted
+        in_node = np.zeros((6, 6))
+        in_node[:3, :3] = information
+        to_node = adjoint(invert(transform))  # a LoopEdge's information is in its target's frame
+        priors.append(LoopEdge(k, 0, transform, to_node.T @ in_node @ to_node))
     return priors
 
 
