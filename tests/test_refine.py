@@ -19,8 +19,9 @@ from vcr_odom.errors import ConfigError
 from vcr_odom.geometry import make_transform, normalise_to_first, rotation_from_euler_zyx
 from vcr_odom.metrics import trajectory_pair_errors
 from vcr_odom.odometry import IcpPolish, InitialGuess, KissIcpPolish, Odometry, run_odometry
+from vcr_odom.odometry.agreement import MARKEDLY_WORSE
 from vcr_odom.odometry.factory import build_odometry, canonical_spec, parse_method_spec
-from vcr_odom.odometry.guided_kiss import MARKEDLY_WORSE, GuidedKissICP, KissFramePreparer
+from vcr_odom.odometry.guided_kiss import GuidedKissICP, KissFramePreparer
 from vcr_odom.odometry.outputs import run_summary
 from vcr_odom.odometry.polish import POLISHES
 from vcr_odom.registration import SequentialOdometry, make_method

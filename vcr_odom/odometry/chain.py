@@ -26,7 +26,7 @@ import numpy as np
 from vcr_odom.data.base import Points
 from vcr_odom.errors import ConfigError
 from vcr_odom.geometry import Transform, motion_difference, project_to_se3
-from vcr_odom.odometry.guided_kiss import BASIN_DEG, BASIN_M, MARKEDLY_WORSE, within_basin
+from vcr_odom.odometry.agreement import BASIN_DEG, BASIN_M, MARKEDLY_WORSE, within_basin
 from vcr_odom.odometry.limits import InitialGuess, MotionLimits
 from vcr_odom.odometry.polish import Polish, PolishResult, PriorAttempt
 from vcr_odom.registration.base import (
@@ -83,12 +83,12 @@ class DoubtRule:
     - On a run's first pair (no motion history), and when its motion is implausible.
     - When it fits worse than ``ratio`` times the median fit of the last ``window`` results that were:
       a wrong result fits the other scan markedly worse than the ones before it
-      (:data:`~vcr_odom.odometry.guided_kiss.MARKEDLY_WORSE`, the margin by which the polish also
+      (:data:`~vcr_odom.odometry.agreement.MARKEDLY_WORSE`, the margin by which the polish also
       ranks two starts' results), while the fit itself varies by sensor and scene, hence a ratio to the
       run's own history.
     - When the local method had to move more than ``correction_m`` or ``correction_deg`` from the
       motion prior to get there (0 turns a check off): the prior started outside the basin within
-      which two starts end in one result (:data:`~vcr_odom.odometry.guided_kiss.BASIN_M`, ``BASIN_DEG``),
+      which two starts end in one result (:data:`~vcr_odom.odometry.agreement.BASIN_M`, ``BASIN_DEG``),
       where a wrong minimum can fit as well as the right one. The fit misses these quiet failures;
       keyframes saved by distance, whose spacing the constant-velocity prior cannot know, meet them
       most (docs/benchmarks.md, "Robust by default", has the measurements). A car at 10 Hz stays well inside.

@@ -22,7 +22,8 @@ from kiss_icp.mapping import VoxelHashMap
 from scipy.spatial import cKDTree
 
 from vcr_odom.errors import ConfigError
-from vcr_odom.geometry import Transform, motion_difference, project_to_se3
+from vcr_odom.geometry import Transform, project_to_se3
+from vcr_odom.odometry.agreement import MARKEDLY_WORSE, within_basin
 from vcr_odom.odometry.degeneracy import WEAK_AXIS_SHARE, hold_along, weak_axes
 from vcr_odom.odometry.plane_refinement import refine_point_to_plane, registration_normals
 from vcr_odom.registration.base import MIN_REGISTRATION_POINTS
@@ -286,20 +287,3 @@ def frame_to_frame_fit(source: np.ndarray, motion: Transform, previous: KissFram
     moved = source @ motion[:3, :3].T + motion[:3, 3]
     distances, _ = previous.tree.query(moved, distance_upper_bound=distance)
     return float(np.mean(np.isfinite(distances)))
-
-
-MARKEDLY_WORSE = 0.8
-"""A fit below this share of another's is markedly worse: a wrong result leaves a fifth or more of the
-points the right one places without a partner. Two fits closer than that cannot be ranked by the fit:
-both near-saturated in a stretch that repeats itself, where a result a metre off places every point
-too, or both poor. There the fit gives no reason to leave kiss-icp's own start, so its result stays
-(docs/benchmarks.md, "Which start wins")."""
-
-BASIN_M = 0.5
-BASIN_DEG = 2.0
-"""Starts this close end in the same local result: running the local method from both only costs time."""
-
-
-def within_basin(a: Transform, b: Transform) -> bool:
-    change_m, change_deg = motion_difference(a, b)
-    return change_m < BASIN_M and change_deg < BASIN_DEG

@@ -18,7 +18,8 @@ from kiss_icp.config import KISSConfig
 
 from vcr_odom.data.base import Points
 from vcr_odom.errors import ConfigError, DataWarning
-from vcr_odom.geometry import Transform, invert
+from vcr_odom.geometry import Transform, invert, motion_difference
+from vcr_odom.odometry.agreement import within_basin
 from vcr_odom.odometry.degeneracy import WEAK_AXIS_SHARE
 from vcr_odom.odometry.guided_kiss import (
     MIN_SOURCE_POINTS,
@@ -27,8 +28,6 @@ from vcr_odom.odometry.guided_kiss import (
     KissFrame,
     KissFramePreparer,
     frame_to_frame_fit,
-    motion_difference,
-    within_basin,
 )
 from vcr_odom.odometry.polish_voxel import density_voxel, raw_sparse_scan, with_voxel
 from vcr_odom.registration.base import TOO_FEW_POINTS, RegistrationResult
