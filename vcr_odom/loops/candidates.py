@@ -6,7 +6,7 @@ it gates the candidates (:func:`find_candidates`), then judges what a loop asks 
 whether two loops agree with each other.
 
 The world-frame formulation: an error ``xi`` on edge ``k`` (a left perturbation in node ``k``'s frame,
-as open3d's fit information is) moves every later node by ``Ad(P_k) xi`` in the world frame, so the
+as a fit's information is) moves every later node by ``Ad(P_k) xi`` in the world frame, so the
 covariance between any two nodes is a difference of prefix sums (one lookup per query).
 """
 
