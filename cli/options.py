@@ -206,7 +206,7 @@ def kiss_polish_options(function: F) -> F:
 
 def describe_methods() -> str:
     """The method list for a command's epilog (click keeps \\b blocks unwrapped)."""
-    from vcr_odom.odometry.factory import DEFAULT_GLOBAL_POLISH, GLOBAL_METHODS
+    from vcr_odom.odometry.factory import DEFAULT_CONSULT, DEFAULT_GLOBAL_POLISH, GLOBAL_METHODS
     from vcr_odom.odometry.polish import POLISHES
     from vcr_odom.registration import METHOD_NAMES
 
@@ -218,6 +218,9 @@ def describe_methods() -> str:
         + "\n\b\nPolish of a pairwise method (NAME+POLISH; "
         + f"{', '.join(GLOBAL_METHODS)} get +{DEFAULT_GLOBAL_POLISH} unless told, the others +none):\n"
         + "\n".join(polish)
+        + f"\n\b\nSo the default, vcr (vcr+{DEFAULT_GLOBAL_POLISH}, --consult {DEFAULT_CONSULT}), is kiss-icp's "
+        "registration\nfrom its own prediction, with VCR-Net asked only where that result is in doubt; its "
+        "estimate\nis then a second start (--consult every-frame: on every pair)."
     )
 
 
