@@ -129,6 +129,26 @@ def record(args: argparse.Namespace) -> None:
     print(f"{len(run.frame_indices)} frames, {len(recording['nodes'])} nodes -> {args.out}")
 
 
+def load_recording(path: Path) -> tuple[dict[str, Any], np.ndarray]:
+    """A recording of :func:`record` and its sequence's ground truth at the recorded frames; SystemExit
+    naming the file where it is not one, or its sequence has no ground truth."""
+    with path.open("rb") as handle:
+        recording = pickle.load(handle)  # the caller's own recording (see the module doc)
+    if not isinstance(recording, dict) or recording.get("format") != FORMAT:
+        raise SystemExit(f"{path}: not a recording of format {FORMAT}; record it again with this checkout")
+    folder = Path(recording["sequence"])
+    selection = FrameSelection(data_root=folder.parent.parent, seq=folder.name, stride=recording["stride"])
+    gt = ground_truth_for(selection.open(), recording["frame_indices"])
+    if gt is None:
+        raise SystemExit(f"{path}: {folder} has no ground truth to score against")
+    return recording, gt
+
+
+def recorded_options(recording: dict[str, Any]) -> dict[str, Any]:
+    """The loop options the recording was made with that this checkout's :class:`LoopSettings` knows."""
+    return {k: v for k, v in recording["loop_options"].items() if k in LoopSettings.model_fields}
+
+
 def replay_one(
     path: Path,
     options_set: dict[str, str] | None = None,
@@ -140,20 +160,12 @@ def replay_one(
     adds the map's ATE with every loop the graph gets measured by the truth (see the module doc);
     ``candidates``: a folder that gets ``<sequence>.json``, every candidate's verdict and its errors
     against the truth (:func:`candidates_against_truth`)."""
-    with path.open("rb") as handle:
-        recording = pickle.load(handle)  # the caller's own recording (see the module doc)
-    if not isinstance(recording, dict) or recording.get("format") != FORMAT:
-        raise SystemExit(f"{path}: not a recording of format {FORMAT}; record it again with this checkout")
+    recording, gt = load_recording(path)
     folder = Path(recording["sequence"])
-    selection = FrameSelection(data_root=folder.parent.parent, seq=folder.name, stride=recording["stride"])
-    gt = ground_truth_for(selection.open(), recording["frame_indices"])
-    if gt is None:
-        raise SystemExit(f"{path}: {folder} has no ground truth to score against")
     network = loop_network(
         recording["network"]["weights"], recording["network"]["device"], recording["network"]["vcr_points"]
     )
-    recorded = {k: v for k, v in recording["loop_options"].items() if k in LoopSettings.model_fields}
-    options = LoopSettings(**(recorded | (options_set or {})))
+    options = LoopSettings(**(recorded_options(recording) | (options_set or {})))
     phases = Phases(None)
     closed = close_loops(options, network, recording["nodes"], recording["poses"], phases)
     loops = loops_json(closed.decisions, recording["nodes"])

@@ -27,26 +27,23 @@ from __future__ import annotations
 
 import argparse
 import json
-import pickle
 import statistics
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from loop_replay import FORMAT  # beside this script
+from loop_replay import load_recording, recorded_options  # beside this script
 from numpy.typing import NDArray
 from rich.console import Console
 from rich.table import Table
 
-from vcr_odom.data.selection import FrameSelection
 from vcr_odom.geometry import adjoint, invert, twist
 from vcr_odom.io import replacing
 from vcr_odom.loops.candidates import Chain, LoopEdge, covariance
 from vcr_odom.loops.nodes import Node, NodeNormals
 from vcr_odom.loops.settings import LoopSettings
 from vcr_odom.loops.verify import odometry_information
-from vcr_odom.odometry.outputs import ground_truth_for
 
 LENGTHS = (4, 16, 64)
 """Stretch lengths in edges (nodes are about 3 m apart: 12 m to 200 m)."""
@@ -92,22 +89,13 @@ def stretch_growth(
 
 def measure(path: Path) -> dict[str, Any]:
     """Shape and growth of one recording's odometry (see the module doc)."""
-    with path.open("rb") as handle:
-        recording = pickle.load(handle)  # the caller's own recording, as loop_replay.py reads it
-    if not isinstance(recording, dict) or recording.get("format") != FORMAT:
-        raise SystemExit(f"{path}: not a recording of format {FORMAT}; record it with loop_replay.py")
-    folder = Path(recording["sequence"])
-    selection = FrameSelection(data_root=folder.parent.parent, seq=folder.name, stride=recording["stride"])
-    truth = ground_truth_for(selection.open(), recording["frame_indices"])
-    if truth is None:
-        raise SystemExit(f"{path}: {folder} has no ground truth")
-    recorded = {k: v for k, v in recording["loop_options"].items() if k in LoopSettings.model_fields}
+    recording, truth = load_recording(path)
     nodes = recording["nodes"]
-    information = odometry_information(nodes, NodeNormals(nodes), LoopSettings(**recorded))
+    information = odometry_information(nodes, NodeNormals(nodes), LoopSettings(**recorded_options(recording)))
     chain = Chain(np.stack([node.pose for node in nodes]), list(information))
     rotation, translation = edge_shape(nodes, truth, information)
     row: dict[str, Any] = {
-        "sequence": folder.name,
+        "sequence": Path(recording["sequence"]).name,
         "edges": len(rotation),
         "rotation_median": statistics.median(rotation),
         "translation_median": statistics.median(translation),
