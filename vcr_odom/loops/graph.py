@@ -192,10 +192,8 @@ def source_frame_information(edge: LoopEdge) -> NDArray[np.float64]:
 
 def residual_chi2(poses: NDArray[np.float64], loop: LoopEdge) -> float:
     """``r^T I r`` of a loop under ``poses`` (how far the solved graph is from what it measured)."""
-    error = invert(loop.transform) @ invert(poses[loop.target]) @ poses[loop.source]
-    # the information is on a left perturbation in the target's frame: move the error there
-    residual = adjoint(loop.transform) @ twist(error)
-    return float(residual @ loop.information @ residual)
+    residual = twist(invert(loop.transform) @ invert(poses[loop.target]) @ poses[loop.source])
+    return float(residual @ source_frame_information(loop) @ residual)  # the error is the source's
 
 
 def correct_frames(
