@@ -184,7 +184,18 @@ def initial_guess_option(function: F) -> F:
 
 
 def kiss_polish_options(function: F) -> F:
-    """``--polish-voxel`` and ``--point-to-plane``: the kiss-icp polish's grid and its finish."""
+    """``--polish-voxel``, ``--point-to-plane`` and ``--polish-engine``: the kiss-icp polish's grid,
+    its finish and what registers a frame to its map."""
+    from vcr_odom.odometry.guided_kiss import ENGINES
+
+    function = click.option(
+        "--polish-engine",
+        type=click.Choice(list(ENGINES)),
+        default="kiss-icp",
+        show_default=True,
+        help="What registers a frame to the kiss-icp polish's map: "
+        + "; ".join(f"{name}: {text}" for name, text in ENGINES.items()),
+    )(function)
     function = click.option(
         "--point-to-plane",
         type=click.Choice(["auto", "on", "off"]),

@@ -75,6 +75,15 @@ def test_a_polish_voxel_without_the_kiss_icp_polish_is_refused_before_the_run(
         assert no_results(results)
     assert_fails(invoke("run", "--data-root", synthetic_root, "--polish-voxel", "0"), 2, "--polish-voxel")
     result = invoke(
+        "run", "--data-root", synthetic_root, "--method", "icp", "--polish-engine", "vgicp",
+        "--results-dir", results,
+    )  # fmt: skip
+    assert_fails(result, 2, "--polish-engine", "and icp has none")
+    assert_fails(
+        invoke("run", "--data-root", synthetic_root, "--polish-engine", "gicp"), 2, "--polish-engine"
+    )
+    assert no_results(results)
+    result = invoke(
         "run",
         "--data-root",
         synthetic_root,

@@ -80,6 +80,7 @@ class CompareSettings(Settings):
     consult: Consult = DEFAULT_CONSULT
     polish_voxel: float | None = Field(default=None, gt=0)
     point_to_plane: Literal["auto", "on", "off"] = "auto"
+    polish_engine: Literal["kiss-icp", "vgicp"] = "kiss-icp"
     results_dir: Path = Path("results")
 
     def method_options(self, spec: str) -> dict[str, Any]:
@@ -87,11 +88,11 @@ class CompareSettings(Settings):
         return vcr_options(method, self.weights, self.device, self.vcr_passes, self.vcr_points)
 
     def polish_options(self, spec: str) -> dict[str, object]:
-        """``polish_voxel`` and ``point_to_plane`` for a row with the kiss-icp polish; none for the
+        """``polish_voxel``, ``point_to_plane`` and ``polish_engine`` for a row with the kiss-icp polish; none for the
         others (the kiss-icp baseline, kiss-slam and the other polishes keep their own)."""
         if parse_method_spec(spec)[1] != "kiss-icp":
             return {}
-        return kiss_polish_options(self.polish_voxel, self.point_to_plane)
+        return kiss_polish_options(self.polish_voxel, self.point_to_plane, self.polish_engine)
 
 
 @dataclass
@@ -237,6 +238,7 @@ def _check_polish_options(settings: CompareSettings, specs: list[str]) -> None:
         for flag, set_ in (
             ("--polish-voxel", settings.polish_voxel is not None),
             ("--point-to-plane", settings.point_to_plane != "auto"),
+            ("--polish-engine", settings.polish_engine != "kiss-icp"),
         )
         if set_
     ]

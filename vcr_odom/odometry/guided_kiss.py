@@ -25,12 +25,20 @@ from vcr_odom.errors import ConfigError
 from vcr_odom.geometry import Transform, project_to_se3
 from vcr_odom.odometry.agreement import MARKEDLY_WORSE, within_basin
 from vcr_odom.odometry.degeneracy import WEAK_AXIS_SHARE, hold_along, weak_axes
+from vcr_odom.odometry.gaussian_map import GaussianMap
 from vcr_odom.odometry.plane_refinement import refine_point_to_plane, registration_normals
 from vcr_odom.registration.base import MIN_REGISTRATION_POINTS
 
 NORMAL_RADIUS_VOXELS = 4.5
 """Surface normals for the weak axes are estimated within this many map voxels: three cells of the
 registration's own grid (1.5 voxels), so a normal spans a few of the points it is fitted to."""
+
+ENGINES: dict[str, str] = {
+    "kiss-icp": "kiss-icp's own point-to-point registration to its voxel map",
+    "vgicp": "small_gicp's voxelized GICP to a Gaussian voxel map on the same grid: converges in a few "
+    "iterations from far starts (docs/benchmarks.md)",
+}
+"""The polish's registration engines (``--polish-engine``)."""
 
 KISS_INTERNALS = ("preprocessor", "voxelize", "adaptive_threshold", "registration", "local_map")
 
@@ -127,8 +135,13 @@ class GuidedKissICP(KissICP):
     A start within the basin registers as before (docs/benchmarks.md, "A coarse stage for far
     starts").
 
-    With ``weak_share=0``, ``point_to_plane=False`` and fed its own prediction as the guess, it
-    reproduces kiss-icp's poses exactly (a test holds it to that).
+    ``engine``: :data:`ENGINES`. ``vgicp`` registers against a
+    :class:`~vcr_odom.odometry.gaussian_map.GaussianMap` of the same frames on the same grid instead
+    (kiss-icp's map is still kept: the point-to-plane finish and the fit are measured on it), and
+    needs no coarse stage.
+
+    With ``weak_share=0``, ``point_to_plane=False``, the ``kiss-icp`` engine and fed its own prediction
+    as the guess, it reproduces kiss-icp's poses exactly (a test holds it to that).
     """
 
     def __init__(
@@ -137,9 +150,19 @@ class GuidedKissICP(KissICP):
         weak_share: float = WEAK_AXIS_SHARE,
         point_to_plane: bool = False,
         coarse_voxel: float = 0.0,
+        engine: str = "kiss-icp",
     ) -> None:
+        if engine not in ENGINES:
+            raise ConfigError(f"unknown polish engine {engine!r}; valid choices: {', '.join(ENGINES)}")
         super().__init__(config)
         check_kiss_internals(self)
+        self.gaussian_map = (
+            GaussianMap(config.mapping.voxel_size, config.registration.max_num_threads)
+            if engine == "vgicp"
+            else None
+        )
+        if self.gaussian_map is not None:
+            coarse_voxel = 0.0
         self.weak_share = weak_share
         self.point_to_plane = point_to_plane
         self.coarse_voxel = coarse_voxel
@@ -241,8 +264,10 @@ class GuidedKissICP(KissICP):
 
     def _align(self, source: np.ndarray, guess: Transform, sigma: float) -> Transform:
         """kiss-icp's registration step, as its ``register_frame`` calls it; from a far start, after a
-        coarse one (``coarse_voxel``)."""
+        coarse one (``coarse_voxel``); or the Gaussian map's (``engine="vgicp"``)."""
         start = project_to_se3(guess)
+        if self.gaussian_map is not None:
+            return project_to_se3(self.gaussian_map.align(source, start))
         if self.coarse_map is not None and not within_basin(start, self.last_pose @ self.last_delta):
             coarse = voxel_down_sample(source, 1.5 * self.coarse_voxel)
             if len(coarse) >= MIN_SOURCE_POINTS:
@@ -262,6 +287,8 @@ class GuidedKissICP(KissICP):
 
     def _update_maps(self, downsample: np.ndarray, pose: Transform) -> None:
         self.local_map.update(downsample, pose)
+        if self.gaussian_map is not None:
+            self.gaussian_map.insert(downsample, pose)
         if self.coarse_map is not None:
             self.coarse_map.update(voxel_down_sample(downsample, 0.5 * self.coarse_voxel), pose)
 

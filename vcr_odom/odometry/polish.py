@@ -22,6 +22,7 @@ from vcr_odom.geometry import Transform, invert, motion_difference
 from vcr_odom.odometry.agreement import within_basin
 from vcr_odom.odometry.degeneracy import WEAK_AXIS_SHARE
 from vcr_odom.odometry.guided_kiss import (
+    ENGINES,
     MIN_SOURCE_POINTS,
     GuidedKissICP,
     KissAttempt,
@@ -216,7 +217,8 @@ class KissIcpPolish:
     rings nor a keyframe cloud thinned on a grid), whose point-to-point fit slides back.
     ``coarse_start``: where the map is finer than kiss-icp's own voxel, a start far from the prediction
     is registered on a map :data:`COARSE_FACTOR` times coarser first, at most kiss-icp's own voxel
-    (:class:`GuidedKissICP`'s ``coarse_voxel``).
+    (:class:`GuidedKissICP`'s ``coarse_voxel``). ``engine``: what registers a frame to the map
+    (:data:`~vcr_odom.odometry.guided_kiss.ENGINES`).
     """
 
     name = "kiss-icp"
@@ -233,7 +235,11 @@ class KissIcpPolish:
         voxel_size: float | None = None,
         point_to_plane: bool | None = None,
         coarse_start: bool = True,
+        engine: str = "kiss-icp",
     ) -> None:
+        if engine not in ENGINES:
+            raise ConfigError(f"unknown polish engine {engine!r}; valid choices: {', '.join(ENGINES)}")
+        self.engine = engine
         self.config = config or polish_kiss_config()
         self.coarse_start = coarse_start
         self._kiss_own_config = self.config
@@ -275,7 +281,7 @@ class KissIcpPolish:
     def _new_map(self) -> GuidedKissICP:
         fine, own = self.config.mapping.voxel_size, self._kiss_own_config.mapping.voxel_size
         coarse = min(COARSE_FACTOR * fine, own) if self.coarse_start else 0.0
-        return GuidedKissICP(self.config, self.weak_share, self.point_to_plane, coarse)
+        return GuidedKissICP(self.config, self.weak_share, self.point_to_plane, coarse, self.engine)
 
     @property
     def voxel_size(self) -> float:

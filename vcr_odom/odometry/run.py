@@ -66,6 +66,7 @@ class RunSettings(Settings):
     consult: Consult = DEFAULT_CONSULT
     polish_voxel: float | None = Field(default=None, gt=0)
     point_to_plane: Literal["auto", "on", "off"] = "auto"
+    polish_engine: Literal["kiss-icp", "vgicp"] = "kiss-icp"
     save_map: Path | None = None
     map_voxel: float = Field(default=0.5, ge=0.05)
     results_dir: Path = Path("results")
@@ -96,10 +97,15 @@ def vcr_options(
     return {"weights": weights, "device": device, "passes": passes, "num_points": points}
 
 
-def kiss_polish_options(polish_voxel: float | None, point_to_plane: str) -> dict[str, object]:
-    """The kiss-icp polish's constructor options for ``--polish-voxel`` and ``--point-to-plane``
-    (``auto`` and no voxel give none: the polish decides on the first frame)."""
+def kiss_polish_options(
+    polish_voxel: float | None, point_to_plane: str, engine: str = "kiss-icp"
+) -> dict[str, object]:
+    """The kiss-icp polish's constructor options for ``--polish-voxel``, ``--point-to-plane`` and
+    ``--polish-engine`` (``auto``, no voxel and kiss-icp's engine give none: the polish decides on the
+    first frame)."""
     options: dict[str, object] = {}
+    if engine != "kiss-icp":
+        options["engine"] = engine
     if polish_voxel is not None:
         options["voxel_size"] = polish_voxel
     if point_to_plane != "auto":
@@ -110,9 +116,15 @@ def kiss_polish_options(polish_voxel: float | None, point_to_plane: str) -> dict
 def polish_options(settings: RunSettings) -> dict[str, object]:
     """The polish's constructor options (:func:`kiss_polish_options`); a ConfigError naming the
     option where the odometry has no kiss-icp polish, rather than ignoring it."""
-    options = kiss_polish_options(settings.polish_voxel, settings.point_to_plane)
+    options = kiss_polish_options(settings.polish_voxel, settings.point_to_plane, settings.polish_engine)
     if options and parse_method_spec(settings.spec)[1] != "kiss-icp":
-        option = "--polish-voxel" if settings.polish_voxel is not None else "--point-to-plane"
+        option = (
+            "--polish-voxel"
+            if settings.polish_voxel is not None
+            else "--point-to-plane"
+            if settings.point_to_plane != "auto"
+            else "--polish-engine"
+        )
         raise ConfigError(
             f"{option} applies to the kiss-icp polish, and {settings.spec} has none "
             "(the kiss-icp polish is the default of vcr and fpfh, or +kiss-icp)"

@@ -1,0 +1,86 @@
+"""The default odometry with each registration engine of its polish (``--polish-engine``), side by side.
+
+Not a test: run
+
+    .venv/bin/python benchmarks/polish_engines.py --sequence WORK/synth/sequences/701 [--sequence ...] \
+        [--engine kiss-icp --engine vgicp] [--repeat 1] [--json out.json] [--markdown]
+
+Each sequence runs once per engine and round (``--repeat N``: N interleaved rounds, the frames/s a
+median), in this process one after the other, so the speed column is a ratio to the first engine's in
+the same run. Accuracy (end-point drift, SE(3)-aligned ATE) is the same in every round: the runs are
+deterministic. *asked %*: pairs on which the network ran.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+from pathlib import Path
+
+from doubt_misses import run_one, score  # beside this script
+
+from vcr_odom.data import open_sequence
+from vcr_odom.odometry.chain import DoubtRule
+from vcr_odom.odometry.guided_kiss import ENGINES
+
+
+def measure(sequence_folder: Path, engines: list[str], repeat: int) -> list[dict]:
+    sequence = open_sequence(folder=sequence_folder)
+    indices = list(range(len(sequence)))
+    gt = sequence.gt_poses
+    rows: dict[str, dict] = {}
+    for _ in range(repeat):
+        for engine in engines:
+            result = run_one(sequence, indices, "vcr", "on-doubt", DoubtRule(), {"engine": engine})
+            row = rows.setdefault(engine, {"fps": [], **score(result["poses"], gt)})
+            row["fps"].append(result["fps"])
+            row["asked_pct"] = result["asked_pct"]
+    base = statistics.median(rows[engines[0]]["fps"])
+    return [
+        {
+            "sequence": sequence_folder.name,
+            "engine": engine,
+            **{key: value for key, value in row.items() if key != "fps"},
+            "fps": statistics.median(row["fps"]),
+            "speed_ratio": statistics.median(row["fps"]) / base,
+        }
+        for engine, row in rows.items()
+    ]
+
+
+def markdown(rows: list[dict]) -> str:
+    lines = [
+        "| sequence | engine | asked % | end-point % | ATE m (SE3) | frames/s | against the first |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for row in rows:
+        lines.append(
+            f"| {row['sequence']} | {row['engine']} | {row['asked_pct']:.1f} | "
+            f"{row.get('end_point_pct', float('nan')):.3f} | {row.get('ate_m', float('nan')):.4f} | "
+            f"{row['fps']:.1f} | {row['speed_ratio']:.2f}x |"
+        )
+    return "\n".join(lines)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sequence", type=Path, action="append", required=True, help="a sequence folder")
+    parser.add_argument("--engine", action="append", choices=list(ENGINES), help="default: every engine")
+    parser.add_argument("--repeat", type=int, default=1)
+    parser.add_argument("--json", type=Path)
+    parser.add_argument("--markdown", action="store_true")
+    args = parser.parse_args()
+    engines = args.engine or list(ENGINES)
+    rows = []
+    for folder in args.sequence:
+        rows += measure(folder, engines, args.repeat)
+        print(json.dumps(rows[-len(engines) :]), flush=True)
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=1))
+    if args.markdown:
+        print(markdown(rows))
+
+
+if __name__ == "__main__":
+    main()
