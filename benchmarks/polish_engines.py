@@ -3,9 +3,11 @@
 Not a test: run
 
     .venv/bin/python benchmarks/polish_engines.py --sequence WORK/synth/sequences/701 [--sequence ...] \
-        [--engine kiss-icp --engine vgicp] [--repeat 1] [--json out.json] [--markdown]
+        [--engine kiss-icp --engine vgicp] [--variant "vgicp, no finish=engine:vgicp,point_to_plane:off"] \
+        [--repeat 1] [--json out.json] [--markdown]
 
-Each sequence runs once per engine and round (``--repeat N``: N interleaved rounds, the frames/s a
+``--variant NAME=option:value,...`` adds a row of other polish options (``point_to_plane:on|off``,
+``engine:NAME``). Each sequence runs once per engine (and variant) and round (``--repeat N``: N interleaved rounds, the frames/s a
 median), in this process one after the other, so the speed column is a ratio to the first engine's in
 the same run. Accuracy (end-point drift, SE(3)-aligned ATE) is the same in every round: the runs are
 deterministic. *asked %*: pairs on which the network ran.
@@ -24,19 +26,35 @@ from vcr_odom.data import open_sequence
 from vcr_odom.odometry.chain import DoubtRule
 from vcr_odom.odometry.guided_kiss import ENGINES
 
+VARIANT_OPTIONS = {"engine": str, "point_to_plane": lambda text: text == "on"}
 
-def measure(sequence_folder: Path, engines: list[str], repeat: int) -> list[dict]:
+
+def parse_variant(text: str) -> tuple[str, dict]:
+    """``name=option:value,...`` -> the row's name and its polish options."""
+    name, _, body = text.partition("=")
+    options = {}
+    for item in filter(None, body.split(",")):
+        key, _, value = item.partition(":")
+        if key not in VARIANT_OPTIONS:
+            raise SystemExit(
+                f"--variant {text!r}: unknown option {key!r}; options: {', '.join(VARIANT_OPTIONS)}"
+            )
+        options[key] = VARIANT_OPTIONS[key](value)
+    return name, options
+
+
+def measure(sequence_folder: Path, variants: list[tuple[str, dict]], repeat: int) -> list[dict]:
     sequence = open_sequence(folder=sequence_folder)
     indices = list(range(len(sequence)))
     gt = sequence.gt_poses
     rows: dict[str, dict] = {}
     for _ in range(repeat):
-        for engine in engines:
-            result = run_one(sequence, indices, "vcr", "on-doubt", DoubtRule(), {"engine": engine})
+        for engine, options in variants:
+            result = run_one(sequence, indices, "vcr", "on-doubt", DoubtRule(), options)
             row = rows.setdefault(engine, {"fps": [], **score(result["poses"], gt)})
             row["fps"].append(result["fps"])
             row["asked_pct"] = result["asked_pct"]
-    base = statistics.median(rows[engines[0]]["fps"])
+    base = statistics.median(rows[variants[0][0]]["fps"])
     return [
         {
             "sequence": sequence_folder.name,
@@ -67,15 +85,17 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sequence", type=Path, action="append", required=True, help="a sequence folder")
     parser.add_argument("--engine", action="append", choices=list(ENGINES), help="default: every engine")
+    parser.add_argument("--variant", action="append", default=[], help="NAME=option:value,...")
     parser.add_argument("--repeat", type=int, default=1)
     parser.add_argument("--json", type=Path)
     parser.add_argument("--markdown", action="store_true")
     args = parser.parse_args()
-    engines = args.engine or list(ENGINES)
+    variants = [(engine, {"engine": engine}) for engine in args.engine or ENGINES]
+    variants += map(parse_variant, args.variant)
     rows = []
     for folder in args.sequence:
-        rows += measure(folder, engines, args.repeat)
-        print(json.dumps(rows[-len(engines) :]), flush=True)
+        rows += measure(folder, variants, args.repeat)
+        print(json.dumps(rows[-len(variants) :]), flush=True)
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1))
     if args.markdown:

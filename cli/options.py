@@ -201,10 +201,10 @@ def kiss_polish_options(function: F) -> F:
         type=click.Choice(["auto", "on", "off"]),
         default="auto",
         show_default=True,
-        help="Finish the kiss-icp polish's point-to-point fits point to plane: auto where the first "
-        "frame is a raw sparse scan (solid-state; not spinning rings, not grid-thinned keyframes), "
-        "where kiss-icp's fit slides back towards standing still; on: always; off: never "
-        "(docs/usage.md).",
+        help="Finish the kiss-icp polish's fits point to plane: auto where the first frame is a raw "
+        "sparse scan (solid-state; not spinning rings, not grid-thinned keyframes), where kiss-icp's "
+        "point-to-point fit slides back towards standing still, and never with --polish-engine vgicp; "
+        "on: always; off: never (docs/usage.md).",
     )(function)
     return click.option(
         "--polish-voxel",

@@ -150,6 +150,12 @@ def test_the_polish_finishes_point_to_plane_on_raw_sparse_scans_only(kitti_sampl
         chosen = KissIcpPolish(point_to_plane=forced)
         chosen.prepare(first)
         assert chosen.point_to_plane is forced and chosen.kiss.point_to_plane is forced
+    surfaces = KissIcpPolish(engine="vgicp")  # its fit pairs surfaces: no finish unless asked for
+    surfaces.prepare(raw)
+    assert not surfaces.point_to_plane and not surfaces.kiss.point_to_plane
+    asked = KissIcpPolish(engine="vgicp", point_to_plane=True)
+    asked.prepare(raw)
+    assert asked.point_to_plane and asked.kiss.point_to_plane
 
 
 @pytest.mark.filterwarnings("ignore:.*no timestamps")

@@ -214,7 +214,9 @@ class KissIcpPolish:
     prediction is kiss-icp's). ``point_to_plane``: each fit is finished point to plane
     (:mod:`~vcr_odom.odometry.plane_refinement`); None: where the first frame is a raw sparse scan
     (:func:`~vcr_odom.odometry.polish_voxel.raw_sparse_scan`: solid-state, neither a spinning sensor's
-    rings nor a keyframe cloud thinned on a grid), whose point-to-point fit slides back.
+    rings nor a keyframe cloud thinned on a grid), whose point-to-point fit slides back; never with the
+    ``vgicp`` engine, whose fit pairs surfaces already (docs/benchmarks.md, "A Gaussian voxel map for
+    the polish").
     ``coarse_start``: where the map is finer than kiss-icp's own voxel, a start far from the prediction
     is registered on a map :data:`COARSE_FACTOR` times coarser first, at most kiss-icp's own voxel
     (:class:`GuidedKissICP`'s ``coarse_voxel``). ``engine``: what registers a frame to the map
@@ -271,7 +273,8 @@ class KissIcpPolish:
         """The first non-empty frame fixes the map voxel (kiss-icp's map keeps one grid) and whether
         fits are finished point to plane, for the whole run."""
         if self._plane_open:
-            self.point_to_plane = raw_sparse_scan(frame, self._kiss_own_config)
+            point_fit = self.engine == "kiss-icp"
+            self.point_to_plane = point_fit and raw_sparse_scan(frame, self._kiss_own_config)
         if self._voxel_open:
             self.config = with_voxel(self.config, density_voxel(frame, self.config))
             self._preparer = KissFramePreparer(self.config)
