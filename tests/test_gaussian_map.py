@@ -44,6 +44,8 @@ def test_a_frame_started_a_metre_off_lands_on_its_true_pose() -> None:
     assert motion_difference(start, true_pose)[0] > 0.9
     moved_m, turned_deg = motion_difference(gaussian_map.align(frame, start), true_pose)
     assert moved_m < 0.01 and turned_deg < 0.1
+    assert np.array_equal(GaussianMap(voxel_size=1.0).align(frame, start), start)  # nothing to measure
+    assert np.array_equal(gaussian_map.align(frame[:3], start), start)
 
 
 @pytest.mark.filterwarnings("ignore:.*no timestamps")

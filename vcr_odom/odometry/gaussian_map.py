@@ -39,7 +39,10 @@ class GaussianMap:
             self.voxels.insert(self._cloud(points), np.asarray(pose, dtype=np.float64))
 
     def align(self, source: np.ndarray, start: Transform) -> Transform:
-        """The pose that places ``source`` on the map, registered from ``start``."""
+        """The pose that places ``source`` on the map, registered from ``start``; ``start`` itself where
+        the map is empty or ``source`` has too few points for a covariance (nothing to measure)."""
+        if len(self.voxels) == 0 or len(source) < COVARIANCE_NEIGHBOURS:
+            return np.asarray(start, dtype=np.float64)
         result = small_gicp.align(
             self.voxels,
             self._cloud(source),
