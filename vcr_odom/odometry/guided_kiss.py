@@ -6,9 +6,9 @@ registration, the choice between the two results, and a split of the work: what 
 alone (:func:`kiss_frame`) may run ahead of the chain, and the registration from kiss-icp's own
 prediction (:meth:`GuidedKissICP.from_prediction`) can be looked at before deciding whether a second
 start is needed (:meth:`GuidedKissICP.finish`). With ``engine="vgicp"`` the registration step is
-small_gicp's instead (:mod:`~vcr_odom.odometry.gaussian_map`); the rest stays kiss-icp's. These are kiss-icp internals, not its public API, so
-the supported versions are bounded in pyproject.toml and :func:`check_kiss_internals` names what is
-missing if a release moves them, instead of failing mid-run.
+small_gicp's instead (:mod:`~vcr_odom.odometry.gaussian_map`); the rest stays kiss-icp's. These are
+kiss-icp internals, not its public API, so the supported versions are bounded in pyproject.toml and
+:func:`check_kiss_internals` names what is missing if a release moves them, instead of failing mid-run.
 """
 
 from __future__ import annotations
