@@ -4,7 +4,7 @@ Not a test: run
 
     .venv/bin/python benchmarks/polish_engines.py --sequence WORK/synth/sequences/701 [--sequence ...] \
         [--engine kiss-icp --engine vgicp] [--variant "vgicp, no finish=engine:vgicp,point_to_plane:off"] \
-        [--repeat 1] [--json out.json] [--markdown]
+        [--frames A:B] [--stride K] [--repeat 1] [--json out.json] [--markdown]
 
 ``--variant NAME=option:value,...`` adds a row of other polish options (``point_to_plane:on|off``,
 ``engine:NAME``). Each sequence runs once per engine (and variant) and round (``--repeat N``: N interleaved rounds, the frames/s a
@@ -23,6 +23,7 @@ from pathlib import Path
 from doubt_misses import run_one, score  # beside this script
 
 from vcr_odom.data import open_sequence
+from vcr_odom.data.selection import select_frames
 from vcr_odom.odometry.chain import DoubtRule
 from vcr_odom.odometry.guided_kiss import ENGINES
 
@@ -43,10 +44,12 @@ def parse_variant(text: str) -> tuple[str, dict]:
     return name, options
 
 
-def measure(sequence_folder: Path, variants: list[tuple[str, dict]], repeat: int) -> list[dict]:
+def measure(
+    sequence_folder: Path, variants: list[tuple[str, dict]], repeat: int, frames: str | None, stride: int
+) -> list[dict]:
     sequence = open_sequence(folder=sequence_folder)
-    indices = list(range(len(sequence)))
-    gt = sequence.gt_poses
+    indices = select_frames(len(sequence), frames, stride)
+    gt = None if sequence.gt_poses is None else sequence.gt_poses[indices]
     rows: dict[str, dict] = {}
     for _ in range(repeat):
         for engine, options in variants:
@@ -57,7 +60,9 @@ def measure(sequence_folder: Path, variants: list[tuple[str, dict]], repeat: int
     base = statistics.median(rows[variants[0][0]]["fps"])
     return [
         {
-            "sequence": sequence_folder.name,
+            "sequence": sequence_folder.name
+            + (f", stride {stride}" if stride > 1 else "")
+            + (f", frames {frames}" if frames else ""),
             "engine": engine,
             **{key: value for key, value in row.items() if key != "fps"},
             "fps": statistics.median(row["fps"]),
@@ -86,6 +91,8 @@ def main() -> None:
     parser.add_argument("--sequence", type=Path, action="append", required=True, help="a sequence folder")
     parser.add_argument("--engine", action="append", choices=list(ENGINES), help="default: every engine")
     parser.add_argument("--variant", action="append", default=[], help="NAME=option:value,...")
+    parser.add_argument("--frames", help="A:B, a Python slice of the frames")
+    parser.add_argument("--stride", type=int, default=1)
     parser.add_argument("--repeat", type=int, default=1)
     parser.add_argument("--json", type=Path)
     parser.add_argument("--markdown", action="store_true")
@@ -94,7 +101,7 @@ def main() -> None:
     variants += map(parse_variant, args.variant)
     rows = []
     for folder in args.sequence:
-        rows += measure(folder, variants, args.repeat)
+        rows += measure(folder, variants, args.repeat, args.frames, args.stride)
         print(json.dumps(rows[-len(variants) :]), flush=True)
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1))
