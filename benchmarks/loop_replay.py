@@ -4,7 +4,8 @@ Not a test: run
 
     # once per sequence: the odometry as `map` runs it, with the nodes it records
     .venv/bin/python benchmarks/loop_replay.py record --sequence WORK/sequences/881 --out rec/881.pkl \
-        [--stride K] [--method vcr] [--polish-voxel V] [--point-to-plane auto|on|off]
+        [--stride K] [--method vcr] [--polish-voxel V] [--point-to-plane auto|on|off] \
+        [--polish-engine kiss-icp|vgicp]
     # after each change under vcr_odom/loops: the loop phase on the recording, scored against the truth
     .venv/bin/python benchmarks/loop_replay.py replay rec/881.pkl [rec/898.pkl ...] [--json out.json] \
         [--set passage_attempts=1000 ...] [--candidates DIR]
@@ -92,6 +93,7 @@ def record(args: argparse.Namespace) -> None:
         method=args.method,
         polish_voxel=args.polish_voxel,
         point_to_plane=args.point_to_plane,
+        polish_engine=args.polish_engine,
         results_dir=Path("unused"),
     )
     sequence = selection.open()
@@ -113,6 +115,7 @@ def record(args: argparse.Namespace) -> None:
         "method": args.method,
         "polish_voxel": args.polish_voxel,
         "point_to_plane": args.point_to_plane,
+        "polish_engine": args.polish_engine,
         "network": {
             "weights": settings.weights,
             "device": settings.device,
@@ -339,6 +342,12 @@ def main() -> None:
         choices=("auto", "on", "off"),
         default="auto",
         help="the polish's point-to-plane finish (map's --point-to-plane)",
+    )
+    made.add_argument(
+        "--polish-engine",
+        choices=["kiss-icp", "vgicp"],
+        default="kiss-icp",
+        help="what registers a frame to the polish's map (map's --polish-engine)",
     )
     again = commands.add_parser("replay", help="the loop phase of this checkout on recordings")
     again.add_argument("recordings", type=Path, nargs="+")
