@@ -3,8 +3,8 @@
 kiss-icp's own registration pairs each point with its nearest map point among the 27 voxels around it,
 point to point; from a start a metre off (keyframes, the second starts) it takes a hundred iterations
 and more. VGICP pairs each point's local shape with a voxel's (a mean and a covariance per voxel, kept
-incrementally as frames are inserted), which converges in a few iterations and measures a surface
-better than its points do (docs/benchmarks.md, "A Gaussian voxel map for the polish").
+incrementally as frames are inserted), which converges in a few iterations. It measures most drives
+better and long raw solid-state walks worse (docs/benchmarks.md, "A Gaussian voxel map for the polish").
 """
 
 from __future__ import annotations
