@@ -102,6 +102,12 @@ def test_a_polish_voxel_without_the_kiss_icp_polish_is_refused_before_the_run(
     )  # fmt: skip
     assert_fails(result, 2, "--polish-voxel, --point-to-plane", "icp, kiss-icp, vcr+icp")
     assert no_results(results)
+    result = invoke(
+        "compare", "--data-root", synthetic_root, "-b", "icp", "-b", "kiss-icp",
+        "--polish-engine", "vgicp", "--results-dir", results,
+    )  # fmt: skip
+    assert_fails(result, 2, "--polish-engine", "icp, kiss-icp")
+    assert no_results(results)
 
 
 def test_a_library_error_is_exit_1_in_one_line(synthetic_root: Path, tmp_path: Path) -> None:
