@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import get_args
 
 import numpy as np
 import pytest
@@ -15,6 +16,7 @@ from vcr_odom.data import open_sequence
 from vcr_odom.errors import ConfigError
 from vcr_odom.geometry import invert, make_transform, motion_difference, transform_points
 from vcr_odom.odometry.gaussian_map import GaussianMap
+from vcr_odom.odometry.guided_kiss import ENGINES, PolishEngine
 from vcr_odom.odometry.polish import KissIcpPolish
 
 
@@ -74,4 +76,5 @@ def test_a_run_with_the_vgicp_engine_follows_the_ground_truth(
 
 def test_an_unknown_engine_is_named_with_the_choices() -> None:
     with pytest.raises(ConfigError, match=r"'gicp'.*kiss-icp, vgicp"):
-        KissIcpPolish(engine="gicp")
+        KissIcpPolish(engine="gicp")  # type: ignore[arg-type]
+    assert set(get_args(PolishEngine)) == set(ENGINES)  # the settings' choices are the engines

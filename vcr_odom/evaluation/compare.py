@@ -31,6 +31,7 @@ from vcr_odom.model.weights import default_weights_path, read_weights
 from vcr_odom.odometry.chain import Consult, Odometry
 from vcr_odom.odometry.factory import DEFAULT_CONSULT, build_odometry, parse_method_spec
 from vcr_odom.odometry.frame_loop import OdometryRun
+from vcr_odom.odometry.guided_kiss import PolishEngine
 from vcr_odom.odometry.limits import InitialGuess
 from vcr_odom.odometry.outputs import ground_truth_for, run_summary
 from vcr_odom.odometry.run import ProgressFactory, kiss_polish_options, run_and_save, vcr_options
@@ -80,7 +81,7 @@ class CompareSettings(Settings):
     consult: Consult = DEFAULT_CONSULT
     polish_voxel: float | None = Field(default=None, gt=0)
     point_to_plane: Literal["auto", "on", "off"] = "auto"
-    polish_engine: Literal["kiss-icp", "vgicp"] = "kiss-icp"
+    polish_engine: PolishEngine = "kiss-icp"
     results_dir: Path = Path("results")
 
     def method_options(self, spec: str) -> dict[str, Any]:
@@ -88,8 +89,8 @@ class CompareSettings(Settings):
         return vcr_options(method, self.weights, self.device, self.vcr_passes, self.vcr_points)
 
     def polish_options(self, spec: str) -> dict[str, object]:
-        """``polish_voxel``, ``point_to_plane`` and ``polish_engine`` for a row with the kiss-icp polish; none for the
-        others (the kiss-icp baseline, kiss-slam and the other polishes keep their own)."""
+        """``polish_voxel``, ``point_to_plane`` and ``polish_engine`` for a row with the kiss-icp polish;
+        none for the others (the kiss-icp baseline, kiss-slam and the other polishes keep their own)."""
         if parse_method_spec(spec)[1] != "kiss-icp":
             return {}
         return kiss_polish_options(self.polish_voxel, self.point_to_plane, self.polish_engine)

@@ -14,6 +14,7 @@ kiss-icp internals, not its public API, so the supported versions are bounded in
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 import open3d as o3d
@@ -40,6 +41,7 @@ ENGINES: dict[str, str] = {
     "iterations from far starts (docs/benchmarks.md)",
 }
 """The polish's registration engines (``--polish-engine``)."""
+PolishEngine = Literal["kiss-icp", "vgicp"]
 
 KISS_INTERNALS = ("preprocessor", "voxelize", "adaptive_threshold", "registration", "local_map")
 
@@ -151,7 +153,7 @@ class GuidedKissICP(KissICP):
         weak_share: float = WEAK_AXIS_SHARE,
         point_to_plane: bool = False,
         coarse_voxel: float = 0.0,
-        engine: str = "kiss-icp",
+        engine: PolishEngine = "kiss-icp",
     ) -> None:
         if engine not in ENGINES:
             raise ConfigError(f"unknown polish engine {engine!r}; valid choices: {', '.join(ENGINES)}")

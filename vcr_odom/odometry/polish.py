@@ -22,12 +22,12 @@ from vcr_odom.geometry import Transform, invert, motion_difference
 from vcr_odom.odometry.agreement import within_basin
 from vcr_odom.odometry.degeneracy import WEAK_AXIS_SHARE
 from vcr_odom.odometry.guided_kiss import (
-    ENGINES,
     MIN_SOURCE_POINTS,
     GuidedKissICP,
     KissAttempt,
     KissFrame,
     KissFramePreparer,
+    PolishEngine,
     frame_to_frame_fit,
 )
 from vcr_odom.odometry.polish_voxel import density_voxel, raw_sparse_scan, with_voxel
@@ -237,11 +237,9 @@ class KissIcpPolish:
         voxel_size: float | None = None,
         point_to_plane: bool | None = None,
         coarse_start: bool = True,
-        engine: str = "kiss-icp",
+        engine: PolishEngine = "kiss-icp",
     ) -> None:
-        if engine not in ENGINES:
-            raise ConfigError(f"unknown polish engine {engine!r}; valid choices: {', '.join(ENGINES)}")
-        self.engine = engine
+        self.engine = engine  # checked where the first map is made, below
         self.config = config or polish_kiss_config()
         self.coarse_start = coarse_start
         self._kiss_own_config = self.config

@@ -25,6 +25,7 @@ from vcr_odom.metrics import EvaluationReport, evaluate
 from vcr_odom.odometry.chain import Consult, Odometry
 from vcr_odom.odometry.factory import DEFAULT_CONSULT, build_odometry, canonical_spec, parse_method_spec
 from vcr_odom.odometry.frame_loop import OdometryRun, run_odometry
+from vcr_odom.odometry.guided_kiss import PolishEngine
 from vcr_odom.odometry.limits import InitialGuess
 from vcr_odom.odometry.outputs import Checkpoints, ground_truth_for, run_summary, save_trajectory
 from vcr_odom.plots import plot_trajectories
@@ -66,7 +67,7 @@ class RunSettings(Settings):
     consult: Consult = DEFAULT_CONSULT
     polish_voxel: float | None = Field(default=None, gt=0)
     point_to_plane: Literal["auto", "on", "off"] = "auto"
-    polish_engine: Literal["kiss-icp", "vgicp"] = "kiss-icp"
+    polish_engine: PolishEngine = "kiss-icp"
     save_map: Path | None = None
     map_voxel: float = Field(default=0.5, ge=0.05)
     results_dir: Path = Path("results")
