@@ -67,6 +67,7 @@ from vcr_odom.loops.settings import LoopSettings
 from vcr_odom.map_command import MapSettings
 from vcr_odom.metrics.evo_errors import ate_rpe
 from vcr_odom.odometry.frame_loop import run_odometry
+from vcr_odom.odometry.guided_kiss import ENGINES
 from vcr_odom.odometry.outputs import ground_truth_for
 from vcr_odom.odometry.run import method_for
 
@@ -345,7 +346,7 @@ def main() -> None:
     )
     made.add_argument(
         "--polish-engine",
-        choices=["kiss-icp", "vgicp"],
+        choices=list(ENGINES),
         default="kiss-icp",
         help="what registers a frame to the polish's map (map's --polish-engine)",
     )

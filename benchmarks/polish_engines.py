@@ -7,9 +7,9 @@ Not a test: run
         [--frames A:B] [--stride K] [--repeat 1] [--json out.json] [--markdown]
 
 ``--variant NAME=option:value,...`` adds a row of other polish options (``point_to_plane:on|off``,
-``engine:NAME``). Each sequence runs once per engine (and variant) and round (``--repeat N``: N interleaved rounds, the frames/s a
-median), in this process one after the other, so the speed column is a ratio to the first engine's in
-the same run. Accuracy (end-point drift, SE(3)-aligned ATE) is the same in every round: the runs are
+``engine:NAME``). Each sequence runs once per engine (and variant) and round (``--repeat N``: N
+interleaved rounds, the frames/s a median), in this process one after the other, so the speed column
+is a ratio to the first row's in the same run. Accuracy (end-point drift, SE(3)-aligned ATE) is the same in every round: the runs are
 deterministic. *asked %*: pairs on which the network ran.
 """
 
@@ -27,7 +27,8 @@ from vcr_odom.data.selection import select_frames
 from vcr_odom.odometry.chain import DoubtRule
 from vcr_odom.odometry.guided_kiss import ENGINES
 
-VARIANT_OPTIONS = {"engine": str, "point_to_plane": lambda text: text == "on"}
+VARIANT_OPTIONS = {"engine": list(ENGINES), "point_to_plane": ["on", "off"]}
+"""The polish options a ``--variant`` may set, and the values each takes."""
 
 
 def parse_variant(text: str) -> tuple[str, dict]:
@@ -40,7 +41,9 @@ def parse_variant(text: str) -> tuple[str, dict]:
             raise SystemExit(
                 f"--variant {text!r}: unknown option {key!r}; options: {', '.join(VARIANT_OPTIONS)}"
             )
-        options[key] = VARIANT_OPTIONS[key](value)
+        if value not in VARIANT_OPTIONS[key]:
+            raise SystemExit(f"--variant {text!r}: {key} takes {' or '.join(VARIANT_OPTIONS[key])}")
+        options[key] = value == "on" if key == "point_to_plane" else value
     return name, options
 
 
