@@ -34,7 +34,13 @@ from vcr_odom.odometry.frame_loop import OdometryRun
 from vcr_odom.odometry.guided_kiss import PolishEngine
 from vcr_odom.odometry.limits import InitialGuess
 from vcr_odom.odometry.outputs import ground_truth_for, run_summary
-from vcr_odom.odometry.run import ProgressFactory, kiss_polish_options, run_and_save, vcr_options
+from vcr_odom.odometry.run import (
+    ProgressFactory,
+    kiss_polish_options,
+    polish_flags,
+    run_and_save,
+    vcr_options,
+)
 from vcr_odom.plots import plot_trajectories
 from vcr_odom.preprocess import PreprocessConfig
 from vcr_odom.registration import SEQUENTIAL_METHODS
@@ -234,15 +240,9 @@ def _build(spec: str, settings: CompareSettings) -> Method:
 def _check_polish_options(settings: CompareSettings, specs: list[str]) -> None:
     """The kiss-icp polish's options with no row that has that polish would be ignored: a ConfigError
     (the CLI's usage error) naming them instead, before any folder is made."""
-    given = [
-        flag
-        for flag, set_ in (
-            ("--polish-voxel", settings.polish_voxel is not None),
-            ("--point-to-plane", settings.point_to_plane != "auto"),
-            ("--polish-engine", settings.polish_engine != "kiss-icp"),
-        )
-        if set_
-    ]
+    given = polish_flags(
+        kiss_polish_options(settings.polish_voxel, settings.point_to_plane, settings.polish_engine)
+    )
     if given and not any(settings.polish_options(split_loops(spec)[0]) for spec in specs):
         raise ConfigError(
             f"{', '.join(given)} {'applies' if len(given) == 1 else 'apply'} to the kiss-icp polish, "

@@ -114,21 +114,28 @@ def kiss_polish_options(
     return options
 
 
+POLISH_FLAGS = {
+    "voxel_size": "--polish-voxel",
+    "point_to_plane": "--point-to-plane",
+    "engine": "--polish-engine",
+}
+"""The option that sets each of :func:`kiss_polish_options`' constructor options."""
+
+
+def polish_flags(options: dict[str, object]) -> list[str]:
+    """The command-line options behind ``options`` (:func:`kiss_polish_options`' result), to name them."""
+    return [flag for key, flag in POLISH_FLAGS.items() if key in options]
+
+
 def polish_options(settings: RunSettings) -> dict[str, object]:
     """The polish's constructor options (:func:`kiss_polish_options`); a ConfigError naming the
-    option where the odometry has no kiss-icp polish, rather than ignoring it."""
+    options where the odometry has no kiss-icp polish, rather than ignoring them."""
     options = kiss_polish_options(settings.polish_voxel, settings.point_to_plane, settings.polish_engine)
     if options and parse_method_spec(settings.spec)[1] != "kiss-icp":
-        option = (
-            "--polish-voxel"
-            if settings.polish_voxel is not None
-            else "--point-to-plane"
-            if settings.point_to_plane != "auto"
-            else "--polish-engine"
-        )
+        flags = polish_flags(options)
         raise ConfigError(
-            f"{option} applies to the kiss-icp polish, and {settings.spec} has none "
-            "(the kiss-icp polish is the default of vcr and fpfh, or +kiss-icp)"
+            f"{', '.join(flags)} {'applies' if len(flags) == 1 else 'apply'} to the kiss-icp polish, and "
+            f"{settings.spec} has none (the kiss-icp polish is the default of vcr and fpfh, or +kiss-icp)"
         )
     return options
 
