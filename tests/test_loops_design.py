@@ -349,3 +349,34 @@ def _parse(text: str) -> dict:
     import tomllib
 
     return tomllib.loads(text)
+
+
+def test_a_submap_loop_weighs_its_fit_and_the_odometrys_placement_of_its_submap() -> None:
+    """Two loops from node 1 onto node 0 that hold translation alike, one of them fitted on a submap
+    whose members the odometry placed with a known uncertainty: the solve lands on their weighted
+    mean, the submap loop's covariance its fit's plus the placement's mean over the members (node 1
+    itself, placed exactly, and node 2, half a metre either way): closed form, as above."""
+    turned = make_transform(rotation_from_euler_zyx(math.pi / 2, 0.0, 0.0), [5.0, 0.0, 0.0])
+    poses = np.stack([np.eye(4), turned, turned @ make_transform(np.eye(3), [3.0, 0.0, 0.0])])
+    held_rotation = 1e10
+    free = np.eye(6) * 1e-9
+    placed = np.diag([held_rotation] * 3 + [0.5**-2] * 3)
+    chain = Chain(poses, [free, placed])
+    fit = np.diag([held_rotation] * 3 + [4.0] * 3)  # half a metre, every way
+    measured = {"plain": (5.0, 0.0, 0.0), "submap": (6.0, 1.0, 0.0)}
+    submap = LoopEdge(
+        1, 0, make_transform(turned[:3, :3], measured["submap"]), fit, chain.submap_placement(1, (1, 2))
+    )
+    plain = LoopEdge(1, 0, make_transform(turned[:3, :3], measured["plain"]), fit)
+    loops = [chain.weighted(loop, scale=1.0) for loop in (plain, submap)]
+    assert loops[0] is plain and loops[1].placement is None
+    after = optimise(poses, [free, placed], loops)
+    weight_plain = np.eye(3) * 4.0
+    weight_submap = np.linalg.inv(np.eye(3) / 4.0 + np.eye(3) * 0.5**2 / 2)
+    expected = np.linalg.solve(
+        weight_plain + weight_submap, weight_plain @ measured["plain"] + weight_submap @ measured["submap"]
+    )
+    assert np.allclose(after[1][:3, 3], expected, atol=1e-3), (after[1][:3, 3], expected)
+    scaled = chain.weighted(submap, scale=4.0)  # the odometry measured four times looser: the same factor
+    covariance = np.linalg.inv(scaled.information)[3:, 3:]
+    assert np.allclose(covariance, np.eye(3) / 4.0 + np.eye(3) * 4.0 * 0.5**2 / 2, atol=1e-6)

@@ -14,6 +14,7 @@ from vcr_odom.loops.graph import LoopEdge, optimise
 from vcr_odom.loops.gravity import UpPriors, up_priors
 from vcr_odom.loops.nodes import Node, NodeNormals
 from vcr_odom.loops.settings import LoopSettings
+from vcr_odom.loops.verify import odometry_information
 from vcr_odom.preprocess import ground_normal
 
 EXACT = np.diag([1e4] * 3 + [1e2] * 3)
@@ -123,3 +124,33 @@ def test_without_a_loop_the_odometry_is_untouched_whatever_the_ground_says() -> 
     up = priors(nodes)
     assert up.edges, "the ground disagrees with the odometry's tilt"
     assert solve(nodes, [], up).tolist() == np.stack(odometry).tolist()
+
+
+def test_an_edge_whose_scans_measured_nothing_does_not_free_the_drive_beyond_the_last_loop() -> None:
+    """Past the last loop only the up priors and the odometry edges hold the nodes. An edge whose two
+    clouds share nothing would leave them free in heading and position (the priors hold tilt only):
+    the solve flung them tens of metres. Each edge also holds its motion to the nodes' own spacing
+    (:func:`~vcr_odom.loops.verify.odometry_information`), so the rest stays where the odometry put it."""
+    truth, odometry = _lap(pitch_drift_deg_per_node=0.5)
+    nodes = _nodes(odometry)
+    up = priors(nodes)
+    loops = [LoopEdge(j, j - 60, invert(truth[j - 60]) @ truth[j], EXACT) for j in (60, 63, 66)]
+    poses = np.stack([node.pose for node in nodes])
+    unbroken = optimise(poses, [ODOMETRY] * (len(nodes) - 1), loops, up)
+    settings = LoopSettings()
+    spacing = np.diag([math.radians(settings.node_angle_deg) ** -2] * 3 + [settings.node_spacing_m**-2] * 3)
+    blind_clouds = [
+        Node(0, 0, np.eye(4), 0.0, np.zeros((0, 3), np.float32)),
+        Node(1, 1, make_transform(np.eye(3), [3.0, 0.0, 0.0]), 3.0, np.zeros((0, 3), np.float32)),
+    ]
+    (measured_nothing,) = odometry_information(blind_clouds, NodeNormals(blind_clouds), settings)
+    assert np.allclose(measured_nothing, spacing), "no correspondence: the edge holds its spacing only"
+    tail = slice(71, None)
+    for blind, worst_m in ((np.zeros((6, 6)), None), (measured_nothing, 0.5)):
+        informations = [ODOMETRY] * (len(nodes) - 1)
+        informations[70] = blind
+        moved = np.abs(optimise(poses, informations, loops, up)[tail, :3, 3] - unbroken[tail, :3, 3]).max()
+        if worst_m is None:
+            assert moved > 10.0, "the failure this guards against: a free edge lets the tail go"
+        else:
+            assert moved < worst_m

@@ -61,11 +61,27 @@ class Chain:
         lever = adjoint(self.poses[target])
         return lever @ covariance(information) @ lever.T
 
+    def loop_covariance(self, loop: LoopEdge, scale: float = 1.0) -> NDArray[np.float64]:
+        """A loop's own world-frame covariance: its fit's, plus its submaps' placement (``scale`` times)."""
+        own = self.edge_covariance(loop.target, loop.information)
+        return own if loop.placement is None else own + scale * loop.placement
+
+    def submap_placement(self, node: int, members: tuple[int, ...]) -> NDArray[np.float64]:
+        """The odometry's covariance of a submap's members about its node, averaged over them."""
+        return np.mean([self.world_covariance(node, k) for k in members], axis=0)
+
+    def weighted(self, loop: LoopEdge, scale: float) -> LoopEdge:
+        """The loop with its whole covariance as its information, in its target's frame (the graph's)."""
+        if loop.placement is None:
+            return loop
+        lever = adjoint(invert(self.poses[loop.target]))
+        information = np.linalg.inv(lever @ self.loop_covariance(loop, scale) @ lever.T)
+        return dataclasses.replace(loop, information=0.5 * (information + information.T), placement=None)
+
     def loop_chi2(self, loop: LoopEdge, scale: float = 1.0) -> float:
         """The squared Mahalanobis distance of what a loop asks of the odometry, under the odometry's
         covariance between its ends times ``scale`` and the loop's own."""
-        own = self.edge_covariance(loop.target, loop.information)
-        spread = scale * self.world_covariance(loop.target, loop.source) + own
+        spread = scale * self.world_covariance(loop.target, loop.source) + self.loop_covariance(loop, scale)
         return mahalanobis2(self.correction(loop), spread)
 
 
@@ -106,6 +122,9 @@ class LoopEdge:
     target: int
     transform: Transform
     information: NDArray[np.float64]
+    placement: NDArray[np.float64] | None = None
+    """A submap loop's: the world-frame covariance of its submaps' placement by the odometry (a submap
+    is only as rigid as the odometry that placed it), which scales with the odometry's."""
 
 
 def find_candidates(nodes: list[Node], chain: Chain, settings: LoopSettings) -> list[LoopCandidate]:

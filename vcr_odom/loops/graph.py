@@ -36,7 +36,7 @@ def consistent_loops(
     spans and the other does not, and both loops' own)."""
     count = len(loops)
     corrections = [chain.correction(loop) for loop in loops]
-    own = [chain.edge_covariance(loop.target, loop.information) for loop in loops]
+    own = [chain.loop_covariance(loop) for loop in loops]
     distances = np.zeros((count, count))
     for a in range(count):
         for b in range(a + 1, count):

@@ -98,7 +98,10 @@ def close_loops(
             decisions.append(verifier.verify(candidate, nodes))
             advance(candidate.source, candidate.prior)
     measured = [d for d in decisions if d.accepted]
-    edges = [LoopEdge(d.candidate.source, d.candidate.target, d.measured, d.information) for d in measured]
+    edges = [
+        LoopEdge(d.candidate.source, d.candidate.target, d.measured, d.information, d.placement)
+        for d in measured
+    ]
     selection = select_loops(edges, chain, settings)
     for decision, verdict in zip(measured, selection.verdicts, strict=True):
         if verdict:
@@ -106,10 +109,10 @@ def close_loops(
     phase.seconds["loops"] = time.perf_counter() - started
     started = time.perf_counter()
     kept = [(d, edge) for d, edge in zip(measured, edges, strict=True) if d.accepted]
-    kept_edges = [edge for _, edge in kept]
+    kept_edges = [chain.weighted(edge, selection.odometry_scale) for _, edge in kept]
     up = up_priors(nodes, normals, settings) if kept_edges else None
     after = optimise(node_poses, edge_information, kept_edges, up, selection.odometry_scale)
-    for decision, edge in kept:
+    for (decision, _), edge in zip(kept, kept_edges, strict=True):
         decision.extra["graph_chi2"] = round(residual_chi2(after, edge), 3)
     if kept_edges:
         poses = correct_frames(odometry_poses, [n.position for n in nodes], node_poses, after)

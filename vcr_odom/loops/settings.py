@@ -22,8 +22,12 @@ class LoopSettings(Settings):
 
     loops: bool = Field(default=True, description="False: the odometry and its map only (a baseline).")
     # Keyframes and submaps
-    node_spacing_m: float = Field(default=3.0, ge=0.1, description="Path between two pose-graph nodes.")
-    node_angle_deg: float = Field(default=20.0, ge=1.0, description="A turn that makes a node too.")
+    node_spacing_m: float = Field(
+        default=3.0, ge=0.1, description="Path between two nodes (and each odometry edge's prior sigma)."
+    )
+    node_angle_deg: float = Field(
+        default=20.0, ge=1.0, description="A turn that makes a node too (and that prior's rotation sigma)."
+    )
     narrow_field_coverage: float = Field(
         default=0.5,
         gt=0,

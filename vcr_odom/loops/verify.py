@@ -81,6 +81,8 @@ class LoopDecision:
     check: str = ""
     measured: Transform | None = None
     information: NDArray[np.float64] | None = None
+    placement: NDArray[np.float64] | None = None
+    """Where submaps were registered, the odometry's covariance of their placement (:class:`LoopEdge`)."""
     scores: FitScores | None = None
     extra: dict[str, Any] = field(default_factory=dict)
     """What later stages add (the graph's residual of the loop)."""
@@ -222,8 +224,11 @@ class LoopVerifier:
             name: polish(source_cloud, target_cloud, start, scale, settings) for name, start in starts.items()
         }
         ends = candidate.source, candidate.target
+        placement = None
+        if submaps:
+            placement = self.chain.submap_placement(*source_key) + self.chain.submap_placement(*target_key)
         chi2 = {
-            name: self.chain.loop_chi2(LoopEdge(*ends, fit.transform, fit.information))
+            name: self.chain.loop_chi2(LoopEdge(*ends, fit.transform, fit.information, placement))
             for name, fit in fits.items()
         }
         gate = chi2_gate(settings.odometry_confidence, 6)
@@ -232,6 +237,7 @@ class LoopVerifier:
         apart_m, apart_deg = motion_difference(other.transform, fit.transform)
         correction_m, correction_deg = motion_difference(candidate.prior, fit.transform)
         decision.measured, decision.information = fit.transform.copy(), fit.information
+        decision.placement = placement
         decision.scores = FitScores(
             fitness=fit.fitness,
             inlier_rmse_m=fit.rmse,
@@ -321,11 +327,16 @@ def odometry_information(
 ) -> list[NDArray[np.float64]]:
     """Each odometry edge's information: the fit of the next node's cloud on this node's at the
     odometry's relative pose (:func:`fit_information`), so that the graph and the candidates weigh the
-    odometry by what its scans measured: weakly along a corridor, weakly where they fit poorly."""
+    odometry by what its scans measured: weakly along a corridor, weakly where they fit poorly. Plus a
+    prior of the nodes' own spacing (``node_angle_deg``, ``node_spacing_m`` as one sigma): the odometry
+    measured the motion between two nodes even where their coarse clouds share nothing, and a
+    direction no edge holds would leave the graph singular beyond the last loop."""
+    rotation, translation = math.radians(settings.node_angle_deg) ** -2, settings.node_spacing_m**-2
+    spacing_prior = np.diag([rotation] * 3 + [translation] * 3)
     informations = []
     for k in range(len(nodes) - 1):
         motion = np.linalg.inv(nodes[k].pose) @ nodes[k + 1].pose
         distance = settings.fine_distance_m * distance_scale(nodes[k])
         fit = fit_information(normals.cloud(k + 1), normals.cloud(k), motion, distance, settings)
-        informations.append(fit.information)
+        informations.append(fit.information + spacing_prior)
     return informations
