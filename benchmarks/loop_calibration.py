@@ -8,8 +8,9 @@ estimation error squared, NEES); for every odometry edge, the same with its fit 
 informations give NEES that follow chi-square on 6 dof (median 5.35). The loops' absolute scale matters
 (it weighs them against the gravity priors and sets what the odometry check and the drift estimate
 allow); the odometry edges' is measured per run by the loops (``odometry_scale``), so their NEES says
-only how far that factor must go. The last line gives the ``loop_information_points`` that puts the
-pooled median of the loops' NEES at 5.35.
+only how far that factor must go. Loops on the nodes' own clouds give the ``loop_information_points``
+that puts their pooled median NEES at 5.35; submap loops are weighed as the graph weighs them, their
+fit's information and the odometry's placement of the submaps at the run's measured drift.
 
 Per revisit passage (its loops register the same surfaces a few metres apart), the NEES of the loops'
 information-weighted mean error (in the world frame) under their summed information: where their
@@ -28,6 +29,7 @@ from loop_replay import add_set_option, loop_options_set  # beside this script
 
 from vcr_odom.data.selection import FrameSelection
 from vcr_odom.geometry import adjoint, invert, twist
+from vcr_odom.loops.candidates import Chain, LoopEdge
 from vcr_odom.loops.nodes import NodeNormals
 from vcr_odom.loops.pipeline import close_loops, loop_network
 from vcr_odom.loops.settings import LoopSettings
@@ -51,9 +53,11 @@ def passage_nees(loops: list[tuple[np.ndarray, np.ndarray]]) -> float:
     return float(mean @ summed @ mean)
 
 
-def calibrate(path: Path, settings: LoopSettings) -> tuple[list[float], list[float], list[tuple[int, float]]]:
-    """The NEES of every accepted loop, of every odometry edge, and of every revisit passage's loops
-    together (with how many loops it has) of one recording."""
+def calibrate(
+    path: Path, settings: LoopSettings
+) -> tuple[dict[bool, list[float]], list[float], list[tuple[int, float]]]:
+    """The NEES of every accepted loop (by whether it registered submaps), of every odometry edge, and
+    of every revisit passage's loops together (with how many loops it has) of one recording."""
     with path.open("rb") as handle:
         recording = pickle.load(handle)  # the caller's own recording (see loop_replay.py)
     folder = Path(recording["sequence"])
@@ -62,25 +66,27 @@ def calibrate(path: Path, settings: LoopSettings) -> tuple[list[float], list[flo
     if gt is None:
         raise SystemExit(f"{path}: {folder} has no ground truth to score against")
     nodes = recording["nodes"]
+    edge_information = odometry_information(nodes, NodeNormals(nodes), settings)
     edges = [
         nees(information, invert(a.pose) @ b.pose, invert(gt[a.position]) @ gt[b.position])
-        for a, b, information in zip(
-            nodes[:-1], nodes[1:], odometry_information(nodes, NodeNormals(nodes), settings), strict=True
-        )
+        for a, b, information in zip(nodes[:-1], nodes[1:], edge_information, strict=True)
     ]
+    chain = Chain(np.stack([node.pose for node in nodes]), edge_information)
     network = loop_network(*(recording["network"][k] for k in ("weights", "device", "vcr_points")))
     closed = close_loops(settings, network, nodes, recording["poses"])
-    loops: list[float] = []
+    loops: dict[bool, list[float]] = {False: [], True: []}
     passages: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}
     for d in closed.decisions:
         if not d.accepted:
             continue
         target = gt[nodes[d.candidate.target].position]
         true = invert(target) @ gt[nodes[d.candidate.source].position]
-        loops.append(nees(d.information, d.measured, true))
+        edge = LoopEdge(d.candidate.source, d.candidate.target, d.measured, d.information, d.placement)
+        information = chain.weighted(edge, closed.odometry_scale).information  # as the graph weighs it
+        loops[d.placement is not None].append(nees(information, d.measured, true))
         lever, back = adjoint(target), adjoint(invert(target))
         world_error = lever @ twist(true @ invert(d.measured))
-        passages.setdefault(d.candidate.passage, []).append((world_error, back.T @ d.information @ back))
+        passages.setdefault(d.candidate.passage, []).append((world_error, back.T @ information @ back))
     return loops, edges, [(len(group), passage_nees(group)) for group in passages.values()]
 
 
@@ -90,20 +96,27 @@ def main() -> None:
     add_set_option(parser)
     args = parser.parse_args()
     settings = LoopSettings(**loop_options_set(args.options_set, parser))
-    pooled: list[float] = []
+    pooled: dict[bool, list[float]] = {False: [], True: []}
     passages: list[tuple[int, float]] = []
     for path in args.recordings:
         loops, edges, groups = calibrate(path, settings)
-        pooled += loops
+        for submaps, values in loops.items():
+            pooled[submaps] += values
         passages += groups
-        loop_text = f"loops {len(loops)}, NEES median {np.median(loops):.2f}" if loops else "no loop"
+        every = loops[False] + loops[True]
+        loop_text = f"loops {len(every)}, NEES median {np.median(every):.2f}" if every else "no loop"
         print(f"{path.stem}: {loop_text}; odometry edges {len(edges)}, NEES median {np.median(edges):.3f}")
-    if pooled:
-        median = float(np.median(pooled))
+    if pooled[False]:
+        median = float(np.median(pooled[False]))
         suggested = settings.loop_information_points * CHI2_MEDIAN_6 / median
         print(
-            f"pooled: {len(pooled)} loops, NEES median {median:.2f} (calibrated: {CHI2_MEDIAN_6}); "
+            f"own clouds: {len(pooled[False])} loops, NEES median {median:.2f} (calibrated: {CHI2_MEDIAN_6}); "
             f"loop_information_points {settings.loop_information_points:g} -> {suggested:.0f}"
+        )
+    if pooled[True]:
+        print(
+            f"submaps: {len(pooled[True])} loops, NEES median {np.median(pooled[True]):.2f} under the fit's "
+            "information and the odometry's placement of the submaps"
         )
     if passages:
         independent = float(np.median([value for _, value in passages]))
