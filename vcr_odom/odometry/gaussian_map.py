@@ -19,9 +19,6 @@ from vcr_odom.geometry import Transform
 COVARIANCE_NEIGHBOURS = 10
 """Points each point's covariance is estimated from: small_gicp's own default for its preprocessing."""
 
-LRU_HORIZON_CAP = 1_000_000
-"""A sensor that has not moved forgets nothing (it adds no new voxels either); a bound for the int."""
-
 MAX_ITERATIONS = 64
 """VGICP stops earlier on small_gicp's own convergence test (0.1 deg, 1 mm); this only bounds a start
 that never settles."""
@@ -29,38 +26,17 @@ that never settles."""
 
 class GaussianMap:
     """The frames inserted so far as small_gicp's Gaussian voxel map (``voxel_size``: its grid, the
-    polish's map voxel). ``threads``: 0 for every core.
+    polish's map voxel); small_gicp forgets voxels no recent frame touched, as kiss-icp's map forgets
+    points out of range. ``threads``: 0 for every core."""
 
-    kiss-icp's map keeps what lies within ``max_range_m`` of the sensor; small_gicp's forgets a voxel
-    no frame touched for a number of insertions. That number is set to the frames it takes, at the
-    run's mean spacing so far, to travel ``max_range_m``: a car at 1 m a frame keeps small_gicp's
-    default 100 frames, a walk at 10 Hz the minutes it takes to come back round a courtyard."""
-
-    def __init__(self, voxel_size: float, max_range_m: float, threads: int = 0) -> None:
+    def __init__(self, voxel_size: float, threads: int = 0) -> None:
         self.voxels = small_gicp.GaussianVoxelMap(float(voxel_size))
-        self.max_range_m = float(max_range_m)
         self.threads = int(threads) or os.cpu_count() or 1
-        self.insertions = 0
-        self.path_m = 0.0
-        self._last_position: np.ndarray | None = None
-
-    @property
-    def horizon(self) -> int:
-        """Insertions a voxel stays without a frame touching it (small_gicp's LRU horizon)."""
-        if self.path_m <= 0.0:
-            return LRU_HORIZON_CAP
-        return int(min(max(self.max_range_m * self.insertions / self.path_m, 1.0), LRU_HORIZON_CAP))
 
     def insert(self, points: np.ndarray, pose: Transform) -> None:
         """Add a frame's points, given in its own frame, at ``pose``."""
-        pose = np.asarray(pose, dtype=np.float64)
-        if self._last_position is not None:
-            self.path_m += float(np.linalg.norm(pose[:3, 3] - self._last_position))
-        self._last_position = pose[:3, 3].copy()
         if len(points) >= COVARIANCE_NEIGHBOURS:
-            self.insertions += 1
-            self.voxels.set_lru(self.horizon)
-            self.voxels.insert(self._cloud(points), pose)
+            self.voxels.insert(self._cloud(points), np.asarray(pose, dtype=np.float64))
 
     def align(self, source: np.ndarray, start: Transform) -> Transform:
         """The pose that places ``source`` on the map, registered from ``start``; ``start`` itself where

@@ -160,7 +160,7 @@ class GuidedKissICP(KissICP):
         super().__init__(config)
         check_kiss_internals(self)
         self.gaussian_map = (
-            GaussianMap(config.mapping.voxel_size, config.data.max_range, config.registration.max_num_threads)
+            GaussianMap(config.mapping.voxel_size, config.registration.max_num_threads)
             if engine == "vgicp"
             else None
         )
