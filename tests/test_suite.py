@@ -20,6 +20,7 @@ from vcr_odom.errors import ConfigError
 from vcr_odom.io import read_kitti_poses
 from vcr_odom.odometry.run import RunSettings, run_sequence
 from vcr_odom.suite.cells import attempts, cell_folder, cells_of, read_row
+from vcr_odom.suite.executors import STOP_WAIT_SECONDS
 from vcr_odom.suite.spec import load_suite
 from vcr_odom.suite.suite import run_suite
 from vcr_odom.suite.summary import averages
@@ -286,7 +287,11 @@ def test_sigterm_stops_a_pool_suite_keeping_what_is_complete_and_a_rerun_finishe
     process = start(suite_file, "--out", out, "--jobs", "2")
     wait_for(process, lambda: any((out / "cells").glob("*/*/*_run_*")))
     process.send_signal(signal.SIGTERM)
-    _, stderr = process.communicate(timeout=120)
+    try:  # the executor waits up to STOP_WAIT_SECONDS for a busy worker before it kills it
+        _, stderr = process.communicate(timeout=STOP_WAIT_SECONDS + 60)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        pytest.fail(f"the suite did not stop on SIGTERM:\n{process.communicate()[1]}")
     assert process.returncode == 143, stderr
     assert "Rerun the same command" in stderr
     rows = json.loads((out / "summary.json").read_text())["rows"]
