@@ -29,7 +29,7 @@ from loop_replay import add_set_option, loop_options_set  # beside this script
 
 from vcr_odom.data.selection import FrameSelection
 from vcr_odom.geometry import adjoint, invert, twist
-from vcr_odom.loops.candidates import Chain, LoopEdge
+from vcr_odom.loops.candidates import Chain
 from vcr_odom.loops.nodes import NodeNormals
 from vcr_odom.loops.pipeline import close_loops, loop_network
 from vcr_odom.loops.settings import LoopSettings
@@ -81,8 +81,7 @@ def calibrate(
             continue
         target = gt[nodes[d.candidate.target].position]
         true = invert(target) @ gt[nodes[d.candidate.source].position]
-        edge = LoopEdge(d.candidate.source, d.candidate.target, d.measured, d.information, d.placement)
-        information = chain.weighted(edge, closed.odometry_scale).information  # as the graph weighs it
+        information = chain.weighted(d.edge(), closed.odometry_scale).information  # as the graph weighs it
         loops[d.placement is not None].append(nees(information, d.measured, true))
         lever, back = adjoint(target), adjoint(invert(target))
         world_error = lever @ twist(true @ invert(d.measured))

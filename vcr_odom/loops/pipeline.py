@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from vcr_odom.loops.candidates import Chain, find_candidates
-from vcr_odom.loops.graph import LoopEdge, correct_frames, optimise, residual_chi2, select_loops
+from vcr_odom.loops.graph import correct_frames, optimise, residual_chi2, select_loops
 from vcr_odom.loops.gravity import up_priors
 from vcr_odom.loops.nodes import Node, NodeNormals
 from vcr_odom.loops.settings import LoopSettings
@@ -98,10 +98,7 @@ def close_loops(
             decisions.append(verifier.verify(candidate, nodes))
             advance(candidate.source, candidate.prior)
     measured = [d for d in decisions if d.accepted]
-    edges = [
-        LoopEdge(d.candidate.source, d.candidate.target, d.measured, d.information, d.placement)
-        for d in measured
-    ]
+    edges = [d.edge() for d in measured]
     selection = select_loops(edges, chain, settings)
     for decision, verdict in zip(measured, selection.verdicts, strict=True):
         if verdict:

@@ -87,6 +87,12 @@ class LoopDecision:
     extra: dict[str, Any] = field(default_factory=dict)
     """What later stages add (the graph's residual of the loop)."""
 
+    def edge(self) -> LoopEdge:
+        """The measured loop as the consistency check and the graph take it."""
+        assert self.measured is not None and self.information is not None, "not measured"
+        source, target = self.candidate.source, self.candidate.target
+        return LoopEdge(source, target, self.measured, self.information, self.placement)
+
     def reject(self, check: str, reason: str) -> None:
         self.accepted, self.check, self.reason = False, check, reason
 
