@@ -81,10 +81,10 @@ def calibrate(
             continue
         target = gt[nodes[d.candidate.target].position]
         true = invert(target) @ gt[nodes[d.candidate.source].position]
-        information = chain.weighted(d.edge(), closed.odometry_scale).information  # as the graph weighs it
-        loops[d.placement is not None].append(nees(information, d.measured, true))
+        information = chain.weighted(d.loop, closed.odometry_scale).information  # as the graph weighs it
+        loops[d.loop.placement is not None].append(nees(information, d.loop.transform, true))
         lever, back = adjoint(target), adjoint(invert(target))
-        world_error = lever @ twist(true @ invert(d.measured))
+        world_error = lever @ twist(true @ invert(d.loop.transform))
         passages.setdefault(d.candidate.passage, []).append((world_error, back.T @ information @ back))
     return loops, edges, [(len(group), passage_nees(group)) for group in passages.values()]
 

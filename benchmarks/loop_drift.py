@@ -83,7 +83,7 @@ def record_nodes(sequence: Any, odometry: np.ndarray, options: LoopSettings) -> 
 def _error(decision: Any, truth: np.ndarray) -> tuple[float, float]:
     """How far (m, deg) a loop's measured transform is from the truth's."""
     expected: Transform = invert(truth[decision.target_frame]) @ truth[decision.source_frame]
-    return motion_difference(expected, decision.measured)
+    return motion_difference(expected, decision.loop.transform)
 
 
 def measure(

@@ -89,7 +89,7 @@ def score(
         if not decision.accepted:
             counts["rejected"] += 1
             continue
-        error = invert(truth) @ decision.measured
+        error = invert(truth) @ decision.loop.transform
         error_m = float(np.linalg.norm(error[:3, 3]))
         error_deg = math.degrees(float(rotation_angle(error[:3, :3])))
         counts["right" if error_m < 0.2 and error_deg < 1.0 else "off"] += 1

@@ -52,7 +52,7 @@ def test_a_loop_off_by_a_metre_or_more_is_false_and_the_worst_is_named(loop_drif
     def loop(source: int, target: int, off_m: float, accepted: bool = True) -> SimpleNamespace:
         measured = invert(truth[target]) @ truth[source] @ make_transform(np.eye(3), [0.0, off_m, 0.0])
         return SimpleNamespace(
-            source_frame=source, target_frame=target, measured=measured, accepted=accepted,
+            source_frame=source, target_frame=target, loop=SimpleNamespace(transform=measured), accepted=accepted,
             check="" if accepted else "odometry", candidate=SimpleNamespace(source=source // 5),
         )  # fmt: skip
 

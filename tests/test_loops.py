@@ -234,10 +234,10 @@ def test_a_revisit_is_registered_without_the_odometry_and_accepted(sample_nodes,
     row = decision.to_dict()
     assert row["failed_check"] is None and row["reason"] == "accepted"
     assert row["source_frame"] == 6 and row["target_frame"] == 0 and row["frames_between"] == 150
-    error = invert(sample_nodes[1]) @ decision.measured
+    error = invert(sample_nodes[1]) @ decision.loop.transform
     assert np.linalg.norm(error[:3, 3]) < 0.2
     assert math.degrees(rotation_angle(error[:3, :3])) < 0.5
-    assert decision.information is not None and np.all(np.linalg.eigvalsh(decision.information) > 0)
+    assert decision.loop is not None and np.all(np.linalg.eigvalsh(decision.loop.information) > 0)
     # what it asked of the odometry is the drift added, measured against the truth independently
     assert row["correction_m"] == pytest.approx(
         np.linalg.norm((invert(candidate.prior) @ sample_nodes[1])[:3, 3]), abs=0.2
@@ -256,7 +256,7 @@ def test_a_correction_beyond_the_odometrys_uncertainty_is_rejected_within_it_acc
     walk = verify_pair(network, nodes, candidate, 10.0, 5.0)
     assert walk.accepted, walk.reason
     assert walk.scores.correction_m > 13.0
-    assert np.linalg.norm((invert(sample_nodes[1]) @ walk.measured)[:3, 3]) < 0.2
+    assert np.linalg.norm((invert(sample_nodes[1]) @ walk.loop.transform)[:3, 3]) < 0.2
     car = verify_pair(network, nodes, candidate, 0.5, 0.5)
     assert car.check == "odometry", car.reason
     assert car.reason.startswith("rejected: asks the odometry for")
@@ -572,7 +572,7 @@ def test_the_loop_phase_estimates_each_nodes_normals_once(sample_nodes, network,
     edges = verify.odometry_information(nodes, normals, settings)
     chain = Chain(np.stack([node.pose for node in nodes]), edges)
     decision = verify.LoopVerifier(network, chain, settings, normals).verify(candidate, nodes)
-    assert decision.measured is not None, decision.reason
+    assert decision.loop is not None, decision.reason
     gravity.up_priors(nodes, normals, settings)
     assert set(estimated) == {node.cloud.tobytes() for node in nodes}
     assert set(estimated.values()) == {1}, "a node's normals estimated more than once"

@@ -76,7 +76,7 @@ def _verify(revisit: tuple[list, np.ndarray], heading_error_deg: float, sigma_de
 def test_an_indoor_revisit_turned_60_degrees_is_measured_right(revisit: tuple[list, np.ndarray]) -> None:
     decision = _verify(revisit, 4.0)
     assert decision.accepted, decision.reason
-    error = invert(revisit[1]) @ decision.measured
+    error = invert(revisit[1]) @ decision.loop.transform
     assert np.linalg.norm(error[:3, 3]) < 0.1
     assert math.degrees(rotation_angle(error[:3, :3])) < 0.5
 
@@ -88,7 +88,7 @@ def test_a_walk_whose_heading_drifted_12_degrees_in_100_m_still_closes(
     such a loop is right and kept; an odometry that claims a car's 2 deg rejects it as asking too much."""
     decision = _verify(revisit, 12.0, sigma_deg=8.0)
     assert decision.accepted, decision.reason
-    error = invert(revisit[1]) @ decision.measured
+    error = invert(revisit[1]) @ decision.loop.transform
     assert np.linalg.norm(error[:3, 3]) < 0.1
     assert math.degrees(rotation_angle(error[:3, :3])) < 0.5
     tight = _verify(revisit, 12.0, sigma_deg=2.0)

@@ -150,7 +150,8 @@ def find_candidates(nodes: list[Node], chain: Chain, settings: LoopSettings) -> 
             frames = nodes[j].position - nodes[i].position
             nearest[j] = LoopCandidate(j, i, prior, float(path[j] - path[i]), distance, sigma, frames)
     chosen: list[LoopCandidate] = []
-    for number, passage in enumerate(_passages(sorted(nearest))):
+    runs = groupby(enumerate(sorted(nearest)), key=lambda pair: pair[1] - pair[0])  # consecutive nodes
+    for number, passage in enumerate([j for _, j in run] for _, run in runs):  # a revisit passage each
         picked: list[float] = []
         length = float(path[passage[-1]] - path[passage[0]])
         spacing = max(settings.attempt_spacing_m, length / settings.passage_attempts)
@@ -177,9 +178,3 @@ def revisit_chi2(chain: Chain, earlier: int, later: int, radius_m: float) -> tup
 
 POSITION_FLOOR_M = 0.01
 """A floor on the position uncertainty (numerical: the first nodes' covariance is near zero)."""
-
-
-def _passages(indices: list[int]) -> list[list[int]]:
-    """Runs of consecutive node indices: the nodes of one revisit, attempted from its closest node."""
-    runs = groupby(enumerate(indices), key=lambda pair: pair[1] - pair[0])
-    return [[j for _, j in run] for _, run in runs]

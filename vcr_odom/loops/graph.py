@@ -15,6 +15,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+import networkx as nx
 import numpy as np
 import open3d as o3d
 from numpy.typing import NDArray
@@ -44,35 +45,14 @@ def consistent_loops(
             spread = spans + own[a] + own[b]
             distances[a, b] = distances[b, a] = mahalanobis2(corrections[a] - corrections[b], spread)
     gate = chi2_gate(confidence, 6)
-    neighbours = [{b for b in range(count) if b != a and distances[a, b] <= gate} for a in range(count)]
-    largest = _maximum_cliques(neighbours)
+    graph = nx.Graph()
+    graph.add_nodes_from(range(count))
+    graph.add_edges_from((a, b) for a in range(count) for b in range(a + 1, count) if distances[a, b] <= gate)
+    cliques = [set(clique) for clique in nx.find_cliques(graph)]  # every maximal one (Bron-Kerbosch)
+    largest = [clique for clique in cliques if len(clique) == max(map(len, cliques))]
     in_every = set.intersection(*largest) if largest else set()
     in_some = set.union(*largest) if largest else set()
     return [k in in_every for k in range(count)], [k in in_some for k in range(count)], distances
-
-
-def _maximum_cliques(neighbours: list[set[int]]) -> list[set[int]]:
-    """Every largest clique (Bron-Kerbosch with pivoting)."""
-    best: list[set[int]] = []
-
-    def expand(clique: set[int], candidates: set[int], excluded: set[int]) -> None:
-        if not candidates and not excluded:
-            if not best or len(clique) > len(best[0]):
-                best[:] = [set(clique)]
-            elif len(clique) == len(best[0]):
-                best.append(set(clique))
-            return
-        if best and len(clique) + len(candidates) < len(best[0]):
-            return
-        pivot = max(candidates | excluded, key=lambda v: len(neighbours[v] & candidates))
-        for vertex in list(candidates - neighbours[pivot]):
-            expand(clique | {vertex}, candidates & neighbours[vertex], excluded & neighbours[vertex])
-            candidates = candidates - {vertex}
-            excluded = excluded | {vertex}
-
-    if neighbours:
-        expand(set(), set(range(len(neighbours))), set())
-    return best
 
 
 @dataclass

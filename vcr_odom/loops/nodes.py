@@ -4,9 +4,8 @@ of each: its odometry pose, the path driven to it, the network's input and a coa
 Why record during the odometry: every frame is read once (a recording may not seek cheaply), and a
 node keeps ~100 KB (a 1 m voxel cloud), so memory grows with the path driven, not with every scan.
 The network's input is made from that cloud only for the nodes a candidate needs: made from every
-node's raw scan it would cost the odometry half its speed, and on KITTI revisits the network lands
-the same from the cloud as from the raw scan (0.033 / 0.066 / 0.062 m against 0.033 / 0.069 / 0.062 m,
-frames 6 / 12 / 20 apart, prior 5 m and 25 deg off).
+node's raw scan it would cost the odometry half its speed, and the network lands the same from the
+cloud as from the raw scan (docs/benchmarks.md, "Maps that close their loops").
 """
 
 from __future__ import annotations
@@ -49,10 +48,6 @@ class Node:
     cloud: NDArray[np.float32]
     ground: NDArray[np.float64] | None = None
     cloud_voxel: float = CLOUD_VOXEL_M
-
-    @property
-    def nbytes(self) -> int:
-        return int(self.cloud.nbytes + self.pose.nbytes + (0 if self.ground is None else self.ground.nbytes))
 
 
 def voxel_cloud(points: Points, voxel: float = CLOUD_VOXEL_M) -> NDArray:
@@ -149,7 +144,9 @@ class NodeRecorder:
     @property
     def nbytes(self) -> int:
         """Memory held by the nodes (the loop closure's state besides the trajectory)."""
-        return sum(node.nbytes for node in self.nodes)
+        return sum(
+            n.cloud.nbytes + n.pose.nbytes + (0 if n.ground is None else n.ground.nbytes) for n in self.nodes
+        )
 
     def _far_from_last_node(self, pose: Transform) -> bool:
         motion = invert(self.nodes[-1].pose) @ pose

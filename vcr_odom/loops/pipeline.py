@@ -98,7 +98,7 @@ def close_loops(
             decisions.append(verifier.verify(candidate, nodes))
             advance(candidate.source, candidate.prior)
     measured = [d for d in decisions if d.accepted]
-    edges = [d.edge() for d in measured]
+    edges = [d.loop for d in measured]
     selection = select_loops(edges, chain, settings)
     for decision, verdict in zip(measured, selection.verdicts, strict=True):
         if verdict:

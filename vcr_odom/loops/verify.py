@@ -70,7 +70,7 @@ class FitScores:
 
 @dataclass
 class LoopDecision:
-    """What became of a candidate: the verdict, what was measured (``T_target_source`` and its
+    """What became of a candidate: the verdict, what was measured (``loop``: ``T_target_source`` and its
     information, open3d's order: rotation then translation, in the target's frame) and why."""
 
     candidate: LoopCandidate
@@ -79,19 +79,11 @@ class LoopDecision:
     accepted: bool = False
     reason: str = ""
     check: str = ""
-    measured: Transform | None = None
-    information: NDArray[np.float64] | None = None
-    placement: NDArray[np.float64] | None = None
-    """Where submaps were registered, the odometry's covariance of their placement (:class:`LoopEdge`)."""
+    loop: LoopEdge | None = None
+    """The measurement as the consistency check and the graph take it (a submap's placement with it)."""
     scores: FitScores | None = None
     extra: dict[str, Any] = field(default_factory=dict)
     """What later stages add (the graph's residual of the loop)."""
-
-    def edge(self) -> LoopEdge:
-        """The measured loop as the consistency check and the graph take it."""
-        assert self.measured is not None and self.information is not None, "not measured"
-        source, target = self.candidate.source, self.candidate.target
-        return LoopEdge(source, target, self.measured, self.information, self.placement)
 
     def reject(self, check: str, reason: str) -> None:
         self.accepted, self.check, self.reason = False, check, reason
@@ -114,7 +106,7 @@ class LoopDecision:
             **{k: round(v, 4) if isinstance(v, float) else v for k, v in scores.items()},
             **self.extra,
             "odometry_T_target_source": candidate.prior.tolist(),
-            "measured_T_target_source": None if self.measured is None else self.measured.tolist(),
+            "measured_T_target_source": None if self.loop is None else self.loop.transform.tolist(),
         }
 
 
@@ -233,17 +225,16 @@ class LoopVerifier:
         placement = None
         if submaps:
             placement = self.chain.submap_placement(*source_key) + self.chain.submap_placement(*target_key)
-        chi2 = {
-            name: self.chain.loop_chi2(LoopEdge(*ends, fit.transform, fit.information, placement))
-            for name, fit in fits.items()
+        loops = {
+            name: LoopEdge(*ends, fit.transform, fit.information, placement) for name, fit in fits.items()
         }
+        chi2 = {name: self.chain.loop_chi2(loop) for name, loop in loops.items()}
         gate = chi2_gate(settings.odometry_confidence, 6)
         best = max(fits, key=lambda name: (chi2[name] <= gate, fits[name].fitness))
         fit, other = fits[best], fits["odometry" if best == "network" else "network"]
         apart_m, apart_deg = motion_difference(other.transform, fit.transform)
         correction_m, correction_deg = motion_difference(candidate.prior, fit.transform)
-        decision.measured, decision.information = fit.transform.copy(), fit.information
-        decision.placement = placement
+        decision.loop = loops[best]
         decision.scores = FitScores(
             fitness=fit.fitness,
             inlier_rmse_m=fit.rmse,
