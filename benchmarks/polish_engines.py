@@ -9,8 +9,8 @@ Not a test: run
 ``--variant NAME=option:value,...`` adds a row of other polish options (``point_to_plane:on|off``,
 ``engine:NAME``). Each sequence runs once per engine (and variant) and round (``--repeat N``: N
 interleaved rounds, the frames/s a median), in this process one after the other, so the speed column
-is a ratio to the first row's in the same run. Accuracy (end-point drift, SE(3)-aligned ATE) is the same in every round: the runs are
-deterministic. *asked %*: pairs on which the network ran.
+is a ratio to the first row's in the same run. Accuracy (end-point drift, SE(3)-aligned ATE) is the
+same in every round: the runs are deterministic. *asked %*: pairs on which the network ran.
 """
 
 from __future__ import annotations

@@ -48,8 +48,8 @@ def consistent_loops(
     graph = nx.Graph()
     graph.add_nodes_from(range(count))
     graph.add_edges_from((a, b) for a in range(count) for b in range(a + 1, count) if distances[a, b] <= gate)
-    cliques = [set(clique) for clique in nx.find_cliques(graph)]  # every maximal one (Bron-Kerbosch)
-    largest = [clique for clique in cliques if len(clique) == max(map(len, cliques))]
+    cliques = sorted(map(set, nx.find_cliques(graph)), key=len, reverse=True)  # every maximal one
+    largest = [clique for clique in cliques if len(clique) == len(cliques[0])]
     in_every = set.intersection(*largest) if largest else set()
     in_some = set.union(*largest) if largest else set()
     return [k in in_every for k in range(count)], [k in in_some for k in range(count)], distances
