@@ -7,7 +7,9 @@ ahead in another thread, and, for a batching registrar, hand several frames over
   frame is prepared once and serves as the source of one pair and the target of the next;
 - :meth:`Odometry.register` estimates each frame's motion from its predecessor (batched where the
   registrar batches: the relative poses are independent);
-- :meth:`Odometry.advance` is the sequential part: plausibility check, polish, chaining.
+- :meth:`Odometry.advance` is the sequential part: the frame's motion (``_motion``, its whole path
+  in one method: the polish from the prior, the doubt rule, the registrar's estimate, the motion
+  limits) chained onto the pose.
 
 With a polish, ``consult="on-doubt"`` asks the global registrar only where the motion prior's polished
 result is in doubt (:class:`DoubtRule`); its per-frame work then waits until a pair needs it.
@@ -222,27 +224,9 @@ class Odometry:
         """Check the estimate, polish it and chain it: the sequential half of a frame."""
         previous = self._previous
         if previous is None:
-            self._previous = frame
-            self.last_info = {}
-            if self.polish is not None:
-                self.polish.start(frame.polish)
-                voxel = getattr(self.polish, "voxel_size", None)  # kiss-icp's map grid, chosen by now
-                if voxel is not None:
-                    plane = bool(getattr(self.polish, "point_to_plane", False))
-                    self.last_info = {"polish_voxel_m": voxel, "polish_point_to_plane": plane}
-            return Step(self._pose.copy(), dict(self.last_info))
+            return self._first(frame)
         seconds = frame.timestamp - previous.timestamp
-        if self.consult == "on-doubt":
-            motion, info = self._from_prior_first(frame, previous, seconds)
-        else:
-            assert result is not None, "register() gives every frame after the first an estimate"
-            coarse, info = self._checked(result, seconds)
-            motion = coarse
-            if self.polish is not None:
-                polished = self.polish.refine(
-                    frame.polish, previous.polish, coarse, pose=self._pose, last_motion=self._last_motion
-                )
-                motion = self._kept(polished, coarse, frame, seconds, info)
+        motion, info = self._motion(frame, previous, result, seconds)
         estimated = motion if self._estimated is None else self._estimated
         self._speeds.append(float(np.linalg.norm(estimated[:3, 3])) / max(seconds, 1e-3))
         self._estimated = None
@@ -254,47 +238,97 @@ class Odometry:
         self.last_info = info
         return Step(self._pose.copy(), info)
 
+    def _motion(
+        self,
+        frame: PreparedFrame,
+        previous: PreparedFrame,
+        result: RegistrationResult | None,
+        seconds: float,
+    ) -> tuple[Transform, dict[str, Any]]:
+        """A frame's motion from its predecessor: the whole path of a frame, in order.
+
+        1. Without a polish, the registrar's estimate, within the motion limits, is the motion.
+        2. ``on-doubt``: the polish registers the frame from the motion prior; where :class:`DoubtRule`
+           does not doubt that result, it is the motion and the registrar is not asked.
+        3. Otherwise the registrar's estimate (asked for now where :meth:`register` did not), within
+           the motion limits, is a start for the polish beside the prior's; the polish keeps the start
+           that fits markedly better.
+        4. A polished motion beyond the limits is undone: the estimate stands and the polish restarts.
+        """
+        if self.polish is None:
+            assert result is not None, "register() gives every frame after the first an estimate"
+            return self._checked(result, seconds)
+        attempt: PriorAttempt | None = None
+        reason: str | None = None
+        if self.consult == "on-doubt":
+            attempt = self.polish.from_prior(
+                frame.polish, previous.polish, pose=self._pose, last_motion=self._last_motion
+            )
+            reason, not_asked = self._doubt(attempt, frame, previous, seconds)
+            if reason is None:
+                polished = self._finish(attempt, frame, previous, None)
+                self._fits.append(attempt.fit)
+                info = polished.info | {"prior_fit": attempt.fit, "global": not_asked}
+                return polished.motion, _flag_unregistered(info)
+        if result is None:
+            self._prepare_for_registrar([f for f in (previous, frame) if f.registrar is None])
+            result = self.registrar.register(frame.registrar, previous.registrar, None)
+        coarse, info = self._checked(result, seconds)
+        if attempt is not None:
+            info |= {"prior_fit": attempt.fit, "global": reason}
+        polished = self._finish(attempt, frame, previous, coarse)
+        motion = self._kept(polished, coarse, frame, seconds, info)
+        if attempt is not None and polished.fit is not None and not info.get("flagged"):
+            self._fits.append(polished.fit)  # the accepted result: what later priors are held to
+        return motion, info
+
+    def _first(self, frame: PreparedFrame) -> Step:
+        """A run's first frame: the identity, and the polish's map begun there."""
+        self._previous = frame
+        self.last_info = {}
+        if self.polish is not None:
+            self.polish.start(frame.polish)
+            voxel = getattr(self.polish, "voxel_size", None)  # kiss-icp's map grid, chosen by now
+            if voxel is not None:
+                plane = bool(getattr(self.polish, "point_to_plane", False))
+                self.last_info = {"polish_voxel_m": voxel, "polish_point_to_plane": plane}
+        return Step(self._pose.copy(), dict(self.last_info))
+
+    def _finish(
+        self,
+        attempt: PriorAttempt | None,
+        frame: PreparedFrame,
+        previous: PreparedFrame,
+        coarse: Transform | None,
+    ) -> PolishResult:
+        assert self.polish is not None
+        return self.polish.finish(
+            attempt, frame.polish, previous.polish, coarse, pose=self._pose, last_motion=self._last_motion
+        )
+
     def step(self, points: Points, timestamp: float = 0.0) -> Transform:
         """One frame at a time (the :class:`SequentialOdometry` interface); ``last_info`` says what happened."""
         (frame,) = self.prepare([(points, timestamp)])
         (result,) = self.register([frame])
         return self.advance(frame, result).pose
 
-    def _from_prior_first(
-        self, frame: PreparedFrame, previous: PreparedFrame, seconds: float
-    ) -> tuple[Transform, dict[str, Any]]:
-        """``consult="on-doubt"``: the polish from the motion prior, and the global estimate only where
-        :class:`DoubtRule` says so (``info["global"]`` records why, or ``not needed``)."""
-        assert self.polish is not None
-        attempt = self.polish.from_prior(
-            frame.polish, previous.polish, pose=self._pose, last_motion=self._last_motion
-        )
+    def _doubt(
+        self, attempt: PriorAttempt, frame: PreparedFrame, previous: PreparedFrame, seconds: float
+    ) -> tuple[str | None, str]:
+        """Why the prior's result is doubted (:class:`DoubtRule`), or None and why the registrar is
+        not needed."""
         reason = self._doubt_about(attempt, seconds)
         confirmed = self._second_start_confirms(reason, attempt, frame, previous)
         if confirmed:
             reason = None
         self._doubted.append(reason is not None)  # the prior's own record: asking for the share below
         reason = reason or self._doubt_everywhere()  # does not count, so the share can fall again
-        if reason is None:
-            polished = self.polish.finish(attempt, frame.polish, previous.polish, None, pose=self._pose)
-            self._fits.append(attempt.fit)
-            needed = f"{NOT_NEEDED}: {SECOND_START_AGREES}" if confirmed else NOT_NEEDED
-            info = polished.info | {"prior_fit": attempt.fit, "global": needed}
-            return polished.motion, _flag_unregistered(info)
-        self._prepare_for_registrar([f for f in (previous, frame) if f.registrar is None])
-        result = self.registrar.register(frame.registrar, previous.registrar, None)
-        coarse, info = self._checked(result, seconds)
-        info |= {"prior_fit": attempt.fit, "global": reason}
-        polished = self.polish.finish(attempt, frame.polish, previous.polish, coarse, pose=self._pose)
-        motion = self._kept(polished, coarse, frame, seconds, info)
-        if polished.fit is not None and not info.get("flagged"):
-            self._fits.append(polished.fit)  # the accepted result: what later priors are held to
-        return motion, info
+        return reason, f"{NOT_NEEDED}: {SECOND_START_AGREES}" if confirmed else NOT_NEEDED
 
     def _doubt_about(self, attempt: PriorAttempt, seconds: float) -> str | None:
         if not self._fits:
             return "first pair"
-        implausible = self.limits.violation(attempt.motion, seconds, self._recent_speed())
+        implausible = self._implausible(attempt.motion, seconds)
         if implausible is not None:
             return f"prior implausible: {implausible}"
         median = statistics.median(self._fits)
@@ -325,21 +359,14 @@ class Odometry:
         return None
 
     def _checked(self, result: RegistrationResult, seconds: float) -> tuple[Transform, dict[str, Any]]:
-        """The global estimate, or the last motion where it is implausible or failed (flagged)."""
+        """The registrar's estimate, or the last motion where it failed or is beyond the limits (flagged)."""
         coarse = np.asarray(result.transform, dtype=np.float64)
         info: dict[str, Any] = {"fitness": result.fitness, "inlier_rmse": result.inlier_rmse, **result.info}
         failed = result.info.get("status") in FAILED_STATUSES
-        self._note_estimate(coarse, seconds, failed)
-        problem = self.limits.violation(coarse, seconds, self._recent_speed())
-        if problem is not None and not self._replace_implausible:
-            info |= {"flagged": True, "reason": f"{problem} at the assumed frame rate; kept ({RATE_HINT})"}
-            problem = None
-        if problem is None and failed:
-            problem = str(result.info["status"])
-        if problem is not None:
-            info |= {"flagged": True, "reason": problem}
-            coarse = self._last_motion
-        return coarse, info
+        replace = self._beyond_limits(coarse, seconds, info, "", failed=failed)
+        if failed and not replace:
+            info |= {"flagged": True, "reason": str(result.info["status"])}
+        return (self._last_motion if replace or failed else coarse), info
 
     def _kept(
         self,
@@ -349,26 +376,40 @@ class Odometry:
         seconds: float,
         info: dict[str, Any],
     ) -> Transform:
-        """The polished motion, or the checked estimate where the polish left the plausible range
+        """The polished motion, or the checked estimate where the polish left the motion limits
         (flagged; the polish restarts there)."""
         assert self.polish is not None
         change_m, change_deg = motion_difference(coarse, polished.motion)
         info |= polished.info | {"polish_change_m": change_m, "polish_change_deg": change_deg}
         _flag_unregistered(info)
-        self._note_estimate(polished.motion, seconds)
-        diverged = self.limits.violation(polished.motion, seconds, self._recent_speed())
-        if diverged is None:
+        if not self._beyond_limits(polished.motion, seconds, info, "polish"):
             return polished.motion
-        if not self._replace_implausible:
-            info |= {
-                "flagged": True,
-                "reason": f"polish: {diverged} at the assumed frame rate; kept ({RATE_HINT})",
-            }
-            return polished.motion
-        info |= {"flagged": True, "reason": f"polish diverged: {diverged}"}
         self.polish.restart(frame.polish, self._pose, coarse)
         self._fits.clear()
         return coarse
+
+    def _beyond_limits(
+        self, motion: Transform, seconds: float, info: dict[str, Any], what: str, *, failed: bool = False
+    ) -> bool:
+        """The motion limits, applied to an estimate (``what`` empty) or the polish's result: whether
+        ``motion`` must be replaced, ``info`` flagged with why. At an assumed frame rate an implausible
+        motion may only mean the guess is wrong: it is flagged and kept. Also keeps ``motion`` as the
+        pair's measured speed (:meth:`_note_estimate`)."""
+        self._note_estimate(motion, seconds, failed)
+        problem = self._implausible(motion, seconds)
+        if problem is None:
+            return False
+        label = f"{what}: " if what else ""
+        if not self._replace_implausible:
+            reason = f"{label}{problem} at the assumed frame rate; kept ({RATE_HINT})"
+            info |= {"flagged": True, "reason": reason}
+            return False
+        info |= {"flagged": True, "reason": f"{what} diverged: {problem}" if what else problem}
+        return True
+
+    def _implausible(self, motion: Transform, seconds: float) -> str | None:
+        """Why ``motion`` is beyond the motion limits, the recent pairs' speed included, or None."""
+        return self.limits.violation(motion, seconds, self._recent_speed())
 
     def _prepare_for_registrar(self, frames: Sequence[PreparedFrame]) -> None:
         if not frames:

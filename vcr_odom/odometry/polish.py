@@ -72,9 +72,12 @@ class PriorAttempt:
 
 class Polish(Protocol):
     """``prepare`` is per-frame work without state (it may run ahead of the chain); ``start`` begins a
-    run at its first frame; ``refine`` polishes one global estimate; ``from_prior`` and ``finish`` do
-    the same in two steps, so the global estimate is asked for only where the prior's result is in
-    doubt (``finish(attempt, None)`` keeps the prior's result); ``restart`` recovers after a divergence."""
+    run at its first frame; ``from_prior`` registers a frame from the motion prior without committing
+    it, so that the global estimate is asked for only where that result is in doubt; ``finish`` commits
+    a frame: the prior's result (``coarse`` None), or the better of it and the result from the global
+    estimate (``attempt`` None: the estimate alone, with the prior as the second start where the polish
+    keeps one); ``from_rest`` is a second start from standing still; ``restart`` recovers after a
+    divergence."""
 
     name: str
     prepare_ahead: bool
@@ -84,16 +87,19 @@ class Polish(Protocol):
 
     def start(self, frame: Any) -> None: ...
 
-    def refine(
-        self, frame: Any, previous: Any, coarse: Transform, *, pose: Transform, last_motion: Transform
-    ) -> PolishResult: ...
-
     def from_prior(
         self, frame: Any, previous: Any, *, pose: Transform, last_motion: Transform
     ) -> PriorAttempt: ...
 
     def finish(
-        self, attempt: PriorAttempt, frame: Any, previous: Any, coarse: Transform | None, *, pose: Transform
+        self,
+        attempt: PriorAttempt | None,
+        frame: Any,
+        previous: Any,
+        coarse: Transform | None,
+        *,
+        pose: Transform,
+        last_motion: Transform,
     ) -> PolishResult: ...
 
     def from_rest(self, attempt: PriorAttempt, frame: Any, previous: Any) -> Transform: ...
@@ -134,17 +140,6 @@ class IcpPolish:
     def start(self, frame: Any) -> None:
         """Nothing to set up: ICP keeps no state between pairs."""
 
-    def refine(
-        self, frame: Any, previous: Any, coarse: Transform, *, pose: Transform, last_motion: Transform
-    ) -> PolishResult:
-        result = self.icp.register(frame, previous, coarse)
-        start = "global"
-        if self.second_start and not within_basin(coarse, last_motion):
-            from_last = self.icp.register(frame, previous, last_motion)
-            if from_last.fitness > result.fitness:
-                result, start = from_last, "last motion"
-        return _icp_result(result, start)
-
     def from_prior(
         self, frame: Any, previous: Any, *, pose: Transform, last_motion: Transform
     ) -> PriorAttempt:
@@ -158,9 +153,27 @@ class IcpPolish:
         return np.asarray(self.icp.register(frame, previous, np.eye(4)).transform, dtype=np.float64)
 
     def finish(
-        self, attempt: PriorAttempt, frame: Any, previous: Any, coarse: Transform | None, *, pose: Transform
+        self,
+        attempt: PriorAttempt | None,
+        frame: Any,
+        previous: Any,
+        coarse: Transform | None,
+        *,
+        pose: Transform,
+        last_motion: Transform,
     ) -> PolishResult:
-        """The prior's result, or (given a global estimate) the better fit of it and ICP from the estimate."""
+        """The prior's result, or (given a global estimate) the better fit of it and ICP from the
+        estimate; without an attempt, ICP from the estimate and (``second_start``, where the last motion
+        lies outside its basin) from the last motion, the higher fitness winning."""
+        if attempt is None:
+            if coarse is None:
+                raise ValueError("finish() needs a global estimate where there is no prior attempt")
+            result, start = self.icp.register(frame, previous, coarse), "global"
+            if self.second_start and not within_basin(coarse, last_motion):
+                from_last = self.icp.register(frame, previous, last_motion)
+                if from_last.fitness > result.fitness:
+                    result, start = from_last, "last motion"
+            return _icp_result(result, start)
         result = attempt.state
         start = "last motion"
         if coarse is not None:
@@ -294,18 +307,6 @@ class KissIcpPolish:
         self.kiss = self._new_map()
         self.kiss.seed(frame, np.eye(4))
 
-    def refine(
-        self,
-        frame: KissFrame,
-        previous: KissFrame,
-        coarse: Transform,
-        *,
-        pose: Transform,
-        last_motion: Transform,
-    ) -> PolishResult:
-        attempt = self.kiss.from_prediction(frame, align=self.keep_prediction)
-        return self._finished(attempt, pose @ coarse, pose)
-
     def from_prior(
         self, frame: KissFrame, previous: KissFrame, *, pose: Transform, last_motion: Transform
     ) -> PriorAttempt:
@@ -319,14 +320,21 @@ class KissIcpPolish:
 
     def finish(
         self,
-        attempt: PriorAttempt,
+        attempt: PriorAttempt | None,
         frame: KissFrame,
         previous: KissFrame,
         coarse: Transform | None,
         *,
         pose: Transform,
+        last_motion: Transform,
     ) -> PolishResult:
-        polished = self._finished(attempt.state, None if coarse is None else pose @ coarse, pose)
+        """kiss-icp's :meth:`GuidedKissICP.finish` with the global estimate as the second start; without
+        an attempt, the frame is registered from the prediction here (``keep_prediction``; else the
+        estimate replaces it) and ``fit`` is not measured."""
+        guess = None if coarse is None else pose @ coarse
+        if attempt is None:
+            return self._finished(self.kiss.from_prediction(frame, align=self.keep_prediction), guess, pose)
+        polished = self._finished(attempt.state, guess, pose)
         polished.fit = attempt.fit
         if polished.info["polish_start"] != "prediction":
             distance = self.config.mapping.voxel_size
