@@ -122,7 +122,10 @@ def given(ctx: click.Context, name: str) -> bool:
     "polish",
     type=click.Choice(list(POLISHES)),
     default=None,
-    help="Polish each pairwise estimate: open3d point-to-plane ICP, or kiss-icp against its local map. "
+    help="The local registration beside a global method: open3d point-to-plane ICP on the two frames, "
+    "or kiss-icp against its local map. With --consult on-doubt (the default) it registers every frame "
+    "from the motion prior and the method's estimate is a second start only where that result is in "
+    "doubt; with every-frame it polishes each estimate. "
     f"Default: {DEFAULT_GLOBAL_POLISH} for the global methods (vcr, fpfh), none for the local ones. "
     "(Also spelled --refine.)",
 )
