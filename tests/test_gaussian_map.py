@@ -75,6 +75,54 @@ def test_a_run_with_the_vgicp_engine_follows_the_ground_truth(
 
 
 def test_an_unknown_engine_is_named_with_the_choices() -> None:
-    with pytest.raises(ConfigError, match=r"'gicp'.*kiss-icp, vgicp"):
+    with pytest.raises(ConfigError, match=r"'gicp'.*kiss-icp, vgicp, vgicp-start"):
         KissIcpPolish(engine="gicp")  # type: ignore[arg-type]
     assert set(get_args(PolishEngine)) == set(ENGINES)  # the settings' choices are the engines
+
+
+def _run(sequence, indices: list[int], engine: str, truth: np.ndarray):
+    from scripted_registrar import ScriptedRegistrar
+
+    from vcr_odom.odometry import Odometry, run_odometry
+
+    polish = KissIcpPolish(engine=engine)  # type: ignore[arg-type]
+    run = run_odometry(sequence, Odometry(ScriptedRegistrar(truth), polish, consult="on-doubt"), indices)
+    return run, polish.kiss
+
+
+def test_vgicp_start_is_kiss_icp_itself_where_its_predictions_hold() -> None:
+    """Consecutive frames of a synthetic drive: kiss-icp's threshold stays below its initial one, so the
+    engine never starts from VGICP, keeps no Gaussian map and gives kiss-icp's engine's poses."""
+    from vcr_odom.geometry import normalise_to_first
+    from vcr_odom.synth import SynthSequence
+
+    sequence = SynthSequence(frames=12, seed=3)
+    indices = list(range(12))
+    truth = normalise_to_first(sequence.gt_poses[indices])
+    own, _ = _run(sequence, indices, "kiss-icp", truth)
+    started, kiss = _run(sequence, indices, "vgicp-start", truth)
+    assert kiss.gaussian_map is None
+    np.testing.assert_allclose(started.poses, own.poses, atol=1e-9)
+
+
+def test_vgicp_start_takes_over_where_kiss_icp_predictions_err_by_metres() -> None:
+    """Frames one and eight apart in turn (keyframes of a stop-and-go): kiss-icp's constant-velocity
+    prediction errs by metres, its threshold passes its initial one, and the engine starts kiss-icp's
+    registration from VGICP's on a Gaussian map begun from kiss-icp's. kiss-icp's registration still
+    places every frame (its accuracy on these scans, 0.1-0.3 m), and the starts VGICP gives it agree
+    with the second start from standing still, so the network is asked on fewer pairs."""
+    from vcr_odom.geometry import normalise_to_first
+    from vcr_odom.metrics import trajectory_pair_errors
+    from vcr_odom.odometry.chain import network_asked
+    from vcr_odom.synth import SynthSequence
+
+    sequence = SynthSequence(frames=29, seed=0)
+    indices = [0, 1, 9, 10, 18, 19, 27, 28]
+    truth = normalise_to_first(sequence.gt_poses[indices])
+    own, _ = _run(sequence, indices, "kiss-icp", truth)
+    started, kiss = _run(sequence, indices, "vgicp-start", truth)
+    assert kiss.gaussian_map is not None and len(kiss.gaussian_map.voxels) > 0
+    errors = [trajectory_pair_errors(run.poses, truth).trans_errors_m for run in (own, started)]
+    assert np.all(errors[1] < errors[0] + 0.05)
+    asked = [sum(map(network_asked, run.per_frame_info[1:])) for run in (own, started)]
+    assert asked[1] < asked[0]

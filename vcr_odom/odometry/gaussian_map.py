@@ -32,6 +32,8 @@ class GaussianMap:
     def __init__(self, voxel_size: float, threads: int = 0) -> None:
         self.voxels = small_gicp.GaussianVoxelMap(float(voxel_size))
         self.threads = int(threads) or os.cpu_count() or 1
+        self._source: np.ndarray | None = None
+        self._source_cloud: small_gicp.PointCloud | None = None
 
     def insert(self, points: np.ndarray, pose: Transform) -> None:
         """Add a frame's points, given in its own frame, at ``pose``."""
@@ -45,12 +47,19 @@ class GaussianMap:
             return np.asarray(start, dtype=np.float64)
         result = small_gicp.align(
             self.voxels,
-            self._cloud(source),
+            self._with_covariances(source),
             np.asarray(start, dtype=np.float64),
             num_threads=self.threads,
             max_iterations=MAX_ITERATIONS,
         )
         return np.asarray(result.T_target_source, dtype=np.float64)
+
+    def _with_covariances(self, source: np.ndarray) -> small_gicp.PointCloud:
+        """``source`` as small_gicp registers it, its covariances estimated once for all the starts a
+        frame is registered from (the same array: the prediction, standing still, the network's)."""
+        if source is not self._source or self._source_cloud is None:
+            self._source, self._source_cloud = source, self._cloud(source)
+        return self._source_cloud
 
     def _cloud(self, points: np.ndarray) -> small_gicp.PointCloud:
         cloud = small_gicp.PointCloud(np.ascontiguousarray(points, dtype=np.float64))

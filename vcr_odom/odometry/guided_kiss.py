@@ -6,7 +6,8 @@ registration, the choice between the two results, and a split of the work: what 
 alone (:func:`kiss_frame`) may run ahead of the chain, and the registration from kiss-icp's own
 prediction (:meth:`GuidedKissICP.from_prediction`) can be looked at before deciding whether a second
 start is needed (:meth:`GuidedKissICP.finish`). With ``engine="vgicp"`` the registration step is
-small_gicp's instead (:mod:`~vcr_odom.odometry.gaussian_map`); the rest stays kiss-icp's. These are
+small_gicp's instead (:mod:`~vcr_odom.odometry.gaussian_map`), with ``"vgicp-start"`` it starts from
+small_gicp's where kiss-icp's predictions err by metres; the rest stays kiss-icp's. These are
 kiss-icp internals, not its public API, so the supported versions are bounded in pyproject.toml and
 :func:`check_kiss_internals` names what is missing if a release moves them, instead of failing mid-run.
 """
@@ -39,9 +40,12 @@ ENGINES: dict[str, str] = {
     "kiss-icp": "kiss-icp's own point-to-point registration to its voxel map",
     "vgicp": "small_gicp's voxelized GICP to a Gaussian voxel map on the same grid: converges in a few "
     "iterations from far starts (docs/benchmarks.md)",
+    "vgicp-start": "kiss-icp's own registration, started from VGICP's result where kiss-icp's adaptive "
+    "threshold exceeds its initial one (its predictions err by metres: keyframes, low rates); "
+    "elsewhere exactly kiss-icp's (docs/benchmarks.md)",
 }
 """The polish's registration engines (``--polish-engine``)."""
-PolishEngine = Literal["kiss-icp", "vgicp"]
+PolishEngine = Literal["kiss-icp", "vgicp", "vgicp-start"]
 
 KISS_INTERNALS = ("preprocessor", "voxelize", "adaptive_threshold", "registration", "local_map")
 
@@ -141,7 +145,12 @@ class GuidedKissICP(KissICP):
     ``engine``: :data:`ENGINES`. ``vgicp`` registers against a
     :class:`~vcr_odom.odometry.gaussian_map.GaussianMap` of the same frames on the same grid instead
     (kiss-icp's map is still kept: the point-to-plane finish and the fit are measured on it), and
-    needs no coarse stage.
+    needs no coarse stage. ``vgicp-start`` keeps kiss-icp's registration on its own map but, where
+    kiss-icp's adaptive threshold (the spread of its predictions' errors so far) exceeds its initial
+    threshold, starts it from VGICP's result on a Gaussian map begun then from kiss-icp's map: from a
+    start metres off kiss-icp's point-to-point fit crawls, with a gate so wide that every point
+    finds a partner, where VGICP converges in a few iterations; kiss-icp's registration still places
+    every frame.
 
     With ``weak_share=0``, ``point_to_plane=False``, the ``kiss-icp`` engine and fed its own prediction
     as the guess, it reproduces kiss-icp's poses exactly (a test holds it to that).
@@ -159,12 +168,9 @@ class GuidedKissICP(KissICP):
             raise ConfigError(f"unknown polish engine {engine!r}; valid choices: {', '.join(ENGINES)}")
         super().__init__(config)
         check_kiss_internals(self)
-        self.gaussian_map = (
-            GaussianMap(config.mapping.voxel_size, config.registration.max_num_threads)
-            if engine == "vgicp"
-            else None
-        )
-        if self.gaussian_map is not None:
+        self.engine = engine
+        self.gaussian_map = self._new_gaussian_map() if engine == "vgicp" else None
+        if engine == "vgicp":
             coarse_voxel = 0.0
         self.weak_share = weak_share
         self.point_to_plane = point_to_plane
@@ -267,15 +273,26 @@ class GuidedKissICP(KissICP):
 
     def _align(self, source: np.ndarray, guess: Transform, sigma: float) -> Transform:
         """kiss-icp's registration step, as its ``register_frame`` calls it; from a far start, after a
-        coarse one (``coarse_voxel``); or the Gaussian map's (``engine="vgicp"``)."""
+        coarse one (``coarse_voxel``), or after VGICP's (``engine="vgicp-start"``, where kiss-icp's
+        threshold is beyond its initial one); or the Gaussian map's alone (``engine="vgicp"``)."""
         start = project_to_se3(guess)
-        if self.gaussian_map is not None:
+        if self.engine == "vgicp":
+            assert self.gaussian_map is not None
             return project_to_se3(self.gaussian_map.align(source, start))
+        if self.engine == "vgicp-start" and sigma > self.config.adaptive_threshold.initial_threshold:
+            if self.gaussian_map is None:  # from now on kept beside kiss-icp's map
+                self.gaussian_map = self._new_gaussian_map()
+                self.gaussian_map.insert(self.local_map.point_cloud(), np.eye(4))
+            start = project_to_se3(self.gaussian_map.align(source, start))
+            return self._align_to(self.local_map, source, start, sigma)
         if self.coarse_map is not None and not within_basin(start, self.last_pose @ self.last_delta):
             coarse = voxel_down_sample(source, 1.5 * self.coarse_voxel)
             if len(coarse) >= MIN_SOURCE_POINTS:
                 start = self._align_to(self.coarse_map, coarse, start, sigma)
         return self._align_to(self.local_map, source, start, sigma)
+
+    def _new_gaussian_map(self) -> GaussianMap:
+        return GaussianMap(self.config.mapping.voxel_size, self.config.registration.max_num_threads)
 
     def _align_to(
         self, voxel_map: VoxelHashMap, source: np.ndarray, start: Transform, sigma: float

@@ -284,7 +284,7 @@ class KissIcpPolish:
         """The first non-empty frame fixes the map voxel (kiss-icp's map keeps one grid) and whether
         fits are finished point to plane, for the whole run."""
         if self._plane_open:
-            point_fit = self.engine == "kiss-icp"
+            point_fit = self.engine != "vgicp"  # VGICP's fit pairs surfaces already
             self.point_to_plane = point_fit and raw_sparse_scan(frame, self._kiss_own_config)
         if self._voxel_open:
             self.config = with_voxel(self.config, density_voxel(frame, self.config))
