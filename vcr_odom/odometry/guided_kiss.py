@@ -147,10 +147,10 @@ class GuidedKissICP(KissICP):
     (kiss-icp's map is still kept: the point-to-plane finish and the fit are measured on it), and
     needs no coarse stage. ``vgicp-start`` keeps kiss-icp's registration on its own map but, where
     kiss-icp's adaptive threshold (the spread of its predictions' errors so far) exceeds its initial
-    threshold, starts it from VGICP's result on a Gaussian map begun then from kiss-icp's map: from a
-    start metres off kiss-icp's point-to-point fit crawls, with a gate so wide that every point
-    finds a partner, where VGICP converges in a few iterations; kiss-icp's registration still places
-    every frame.
+    threshold, starts it from VGICP's result on a Gaussian map begun then from kiss-icp's map and kept
+    while the threshold stays there: from a start metres off kiss-icp's point-to-point fit crawls,
+    with a gate so wide that every point finds a partner, where VGICP converges in a few iterations;
+    kiss-icp's registration still places every frame.
 
     With ``weak_share=0``, ``point_to_plane=False``, the ``kiss-icp`` engine and fed its own prediction
     as the guess, it reproduces kiss-icp's poses exactly (a test holds it to that).
@@ -279,12 +279,15 @@ class GuidedKissICP(KissICP):
         if self.engine == "vgicp":
             assert self.gaussian_map is not None
             return project_to_se3(self.gaussian_map.align(source, start))
-        if self.engine == "vgicp-start" and sigma > self.config.adaptive_threshold.initial_threshold:
-            if self.gaussian_map is None:  # from now on kept beside kiss-icp's map
-                self.gaussian_map = self._new_gaussian_map()
-                self.gaussian_map.insert(self.local_map.point_cloud(), np.eye(4))
-            start = project_to_se3(self.gaussian_map.align(source, start))
-            return self._align_to(self.local_map, source, start, sigma)
+        if self.engine == "vgicp-start":
+            if sigma <= self.config.adaptive_threshold.initial_threshold:
+                self.gaussian_map = None  # kiss-icp's predictions hold: its engine alone, no map to feed
+            else:
+                if self.gaussian_map is None:  # kept beside kiss-icp's map while its predictions err
+                    self.gaussian_map = self._new_gaussian_map()
+                    self.gaussian_map.insert(self.local_map.point_cloud(), np.eye(4))
+                start = project_to_se3(self.gaussian_map.align(source, start))
+                return self._align_to(self.local_map, source, start, sigma)
         if self.coarse_map is not None and not within_basin(start, self.last_pose @ self.last_delta):
             coarse = voxel_down_sample(source, 1.5 * self.coarse_voxel)
             if len(coarse) >= MIN_SOURCE_POINTS:
