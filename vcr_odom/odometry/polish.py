@@ -163,18 +163,14 @@ class IcpPolish:
         last_motion: Transform,
     ) -> PolishResult:
         """The prior's result, or (given a global estimate) the better fit of it and ICP from the
-        estimate; without an attempt, ICP from the estimate and (``second_start``, where the last motion
-        lies outside its basin) from the last motion, the higher fitness winning."""
+        estimate, the estimate's on a tie. Without an attempt, ICP from the last motion is run here, and
+        only where it can end elsewhere (``second_start``, the last motion outside the estimate's basin)."""
         if attempt is None:
             if coarse is None:
                 raise ValueError("finish() needs a global estimate where there is no prior attempt")
-            result, start = self.icp.register(frame, previous, coarse), "global"
-            if self.second_start and not within_basin(coarse, last_motion):
-                from_last = self.icp.register(frame, previous, last_motion)
-                if from_last.fitness > result.fitness:
-                    result, start = from_last, "last motion"
-            return _icp_result(result, start)
-        result = attempt.state
+            if not self.second_start or within_basin(coarse, last_motion):
+                return _icp_result(self.icp.register(frame, previous, coarse), "global")
+        result = self.icp.register(frame, previous, last_motion) if attempt is None else attempt.state
         start = "last motion"
         if coarse is not None:
             from_global = self.icp.register(frame, previous, coarse)
