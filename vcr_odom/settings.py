@@ -9,7 +9,9 @@ as a usage error instead of a traceback.
 
 from __future__ import annotations
 
-from typing import Any, Self
+import tomllib
+from pathlib import Path
+from typing import Any, ClassVar, Self
 
 from pydantic import BaseModel, ConfigDict, ValidationError
 
@@ -35,6 +37,10 @@ class Settings(BaseModel):
     """Frozen, strict about unknown fields, and converted to :class:`ConfigError` on bad values."""
 
     model_config = ConfigDict(frozen=True, extra="forbid", validate_default=True)
+    toml_title: ClassVar[str] = "settings"
+    """The first line of :meth:`dump_toml`'s file."""
+    toml_listed_by: ClassVar[str] = "--dump-config"
+    """The command that writes such a file, named where a file holds an unknown field."""
 
     def __init__(self, **data: Any) -> None:
         try:
@@ -56,3 +62,33 @@ class Settings(BaseModel):
     def with_changes(self, **changes: Any) -> Self:
         """A copy with some fields changed, validated again (``model_copy`` would skip validation)."""
         return type(self)(**{**self.model_dump(), **changes})
+
+    def dump_toml(self) -> str:
+        """The settings as a TOML file a user edits (each field with its description as a comment), as
+        kiss-icp's users keep theirs."""
+        lines = [f"# {self.toml_title}"]
+        for name, field in type(self).model_fields.items():
+            value = getattr(self, name)
+            text = str(value).lower() if isinstance(value, bool) else repr(value)
+            lines += [f"# {field.description}", f"{name} = {text}"]
+        return "\n".join(lines) + "\n"
+
+    @classmethod
+    def from_toml(cls, path: Path) -> dict[str, Any]:
+        """The fields a TOML file sets (a missing file, bad TOML or an unknown field names ``path``)."""
+        try:
+            data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
+        except FileNotFoundError:
+            raise ConfigError(f"--config {path}: no such file") from None
+        except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as error:
+            raise ConfigError(f"--config {path}: not a readable TOML file ({error})") from None
+        unknown = sorted(set(data) - set(cls.model_fields))
+        if unknown:
+            raise ConfigError(
+                f"--config {path}: unknown setting(s) {', '.join(unknown)}; `{cls.toml_listed_by}` lists them"
+            )
+        try:
+            cls(**data)
+        except ConfigError as error:
+            raise ConfigError(f"--config {path}: {error}") from None
+        return data

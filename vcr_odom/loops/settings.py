@@ -7,18 +7,18 @@ them from a file, as kiss-icp's users do (``vcr-odom map --dump-config``, ``--co
 
 from __future__ import annotations
 
-import tomllib
-from pathlib import Path
-from typing import Any
+from typing import ClassVar
 
 from pydantic import Field
 
-from vcr_odom.errors import ConfigError
 from vcr_odom.settings import Settings
 
 
 class LoopSettings(Settings):
     """The loop closure's settings (``map``'s options beyond ``run``'s)."""
+
+    toml_title: ClassVar[str] = "vcr-odom map --config: the loop closure's settings (units in the names)"
+    toml_listed_by: ClassVar[str] = "vcr-odom map --dump-config"
 
     loops: bool = Field(default=True, description="False: the odometry and its map only (a baseline).")
     # Keyframes and submaps
@@ -157,33 +157,3 @@ class LoopSettings(Settings):
     map_scan_spacing_m: float = Field(
         default=6.0, gt=0, description="Path between the scans the map is made of."
     )
-
-    def dump_toml(self) -> str:
-        """The settings as a TOML file a user edits (each field with its description as a comment)."""
-        lines = ["# vcr-odom map --config: the loop closure's settings (units in the names)"]
-        for name, field in type(self).model_fields.items():
-            value = getattr(self, name)
-            text = str(value).lower() if isinstance(value, bool) else repr(value)
-            lines += [f"# {field.description}", f"{name} = {text}"]
-        return "\n".join(lines) + "\n"
-
-    @classmethod
-    def from_toml(cls, path: Path) -> dict[str, Any]:
-        """The fields a TOML file sets (a missing file, bad TOML or an unknown field names ``path``)."""
-        try:
-            data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
-        except FileNotFoundError:
-            raise ConfigError(f"--config {path}: no such file") from None
-        except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as error:
-            raise ConfigError(f"--config {path}: not a readable TOML file ({error})") from None
-        unknown = sorted(set(data) - set(cls.model_fields))
-        if unknown:
-            raise ConfigError(
-                f"--config {path}: unknown setting(s) {', '.join(unknown)}; "
-                "`vcr-odom map --dump-config` lists them"
-            )
-        try:
-            cls(**data)
-        except ConfigError as error:
-            raise ConfigError(f"--config {path}: {error}") from None
-        return data
