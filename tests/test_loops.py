@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from scipy.spatial.transform import Rotation
 
 from vcr_odom.cli.main import cli
 from vcr_odom.geometry import invert, make_transform, rotation_angle, rotation_from_euler_zyx
@@ -320,11 +321,62 @@ def test_starts_that_end_apart_and_overlap_alike_are_ambiguous(
     truth = sample_nodes[1]
     nodes, candidate = drifted_pair(sample_nodes, make_transform(np.eye(3), [1.0, 0.5, 0.0]), 150.0)
     fits = iter([_fit(truth, 0.9), _fit(truth @ make_transform(np.eye(3), [3.0, 0, 0]), other_fitness)])
-    monkeypatch.setattr(verify, "polish", lambda *args: next(fits))  # the network's start first
+    # the network's start first, then the odometry's; its turned starts reach the truth's fit
+    monkeypatch.setattr(verify, "polish", lambda *args: next(fits, _fit(truth, 0.9)))
     decision = verify_pair(network, nodes, candidate, 5.0, 5.0)
     assert decision.scores.start == "network" and decision.scores.starts_apart_m == pytest.approx(3.0)
     assert (decision.check == "ambiguous") is ambiguous, decision.reason
     assert decision.accepted is not ambiguous
+
+
+def test_the_odometrys_start_is_also_tried_turned_by_its_heading_uncertainty(
+    sample_nodes, network, monkeypatch
+) -> None:
+    """Besides the network's and the odometry's starts, the odometry's turned two sigmas of its heading
+    uncertainty (about the world's up) either way, and nothing else about it changed."""
+    from vcr_odom.loops import verify
+
+    nodes, candidate = drifted_pair(sample_nodes, np.eye(4), 150.0)
+    tilted = make_transform(rotation_from_euler_zyx(0.5, 0.1, 0.2), [3.0, -2.0, 1.0])  # the world's up off z
+    nodes = [dataclasses.replace(node, pose=tilted @ node.pose) for node in nodes]
+    starts = []
+
+    def polish(source, target, start, *args):
+        starts.append(np.array(start))
+        return _fit(sample_nodes[1], 0.9)
+
+    monkeypatch.setattr(verify, "polish", polish)
+    verify_pair(network, nodes, candidate, 1.0, 3.0)
+    assert len(starts) == 4
+    assert np.allclose(starts[1], candidate.prior)
+    sigma = math.radians(3.0) * math.sqrt(len(nodes) - 1)  # one edge of 3 deg
+    for turned, sign in zip(starts[2:], (-1.0, 1.0), strict=True):
+        turn = turned[:3, :3] @ candidate.prior[:3, :3].T  # in the first node's frame
+        in_world = tilted[:3, :3] @ turn @ tilted[:3, :3].T
+        assert np.allclose(turned[:3, 3], candidate.prior[:3, 3])
+        assert np.allclose(Rotation.from_matrix(in_world).as_rotvec(), [0.0, 0.0, sign * 2.0 * sigma])
+
+
+@pytest.mark.parametrize(("turned_fitness", "ambiguous"), [(0.8, True), (0.6, False)])
+def test_a_fit_the_odometrys_heading_uncertainty_leaves_for_another_alike_is_ambiguous(
+    sample_nodes, network, monkeypatch, turned_fitness: float, ambiguous: bool
+) -> None:
+    """The network's and the odometry's starts end in one fit, but a start the odometry's heading
+    uncertainty allows ends 20 deg away in a fit that overlaps nearly as well: the place allows several
+    headings (a bent submap, a symmetric yard), and the two starts that agree only shared a basin."""
+    from vcr_odom.loops import verify
+
+    truth = sample_nodes[1]
+    nodes, candidate = drifted_pair(sample_nodes, np.eye(4), 150.0)
+    away = make_transform(rotation_from_euler_zyx(math.radians(20), 0, 0), [0.0, 0.0, 0.0])
+    fits = iter([_fit(truth, 0.9), _fit(truth, 0.9), _fit(away @ truth, turned_fitness)])
+    monkeypatch.setattr(verify, "polish", lambda *args: next(fits, _fit(truth, 0.9)))
+    decision = verify_pair(network, nodes, candidate, 3.0, 10.0)
+    assert (decision.check == "ambiguous") is ambiguous, decision.reason
+    assert decision.accepted is not ambiguous
+    assert decision.scores.starts_apart_deg == pytest.approx(20.0)
+    if ambiguous:
+        assert "odometry -2 sigma" in decision.reason, decision.reason
 
 
 def test_a_node_with_an_empty_scan_is_rejected_not_an_error(sample_nodes, network) -> None:

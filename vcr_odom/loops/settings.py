@@ -110,6 +110,13 @@ class LoopSettings(Settings):
         description="The network's and the odometry's starts must end this close (one fit).",
     )
     starts_agree_deg: float = Field(default=5.0, gt=0, description="... and turned this little.")
+    spread_start_sigmas: float = Field(
+        default=2.0,
+        ge=0,
+        description="The odometry's start is also tried turned this many sigmas of its uncertainty either "
+        "way about the world's up (its heading): a fit such a start leaves for another of like overlap "
+        "is one of several the odometry allows.",
+    )
     ambiguity_overlap_gap: float = Field(
         default=0.15,
         ge=0,

@@ -1,21 +1,21 @@
-"""A loop candidate measured: VCR-Net with no guess, ICP from two starts, the fit's information, and a
-few physical checks.
+"""A loop candidate measured: VCR-Net with no guess, ICP from several starts, the fit's information,
+and a few physical checks.
 
 The network registers the two nodes' clouds, the later one turned by the odometry's relative rotation
 first (the network is trained on headings within +-30 deg, and the odometry's heading drift between
 two visits is a few degrees, so any revisit heading comes within reach). Point-to-plane ICP then
-polishes from the network's estimate and from the odometry's; the fit that overlaps more wins, among
-those the odometry's uncertainty allows. A narrow field of view that comes back at another heading
-shares little with its other visit's scan, so such nodes register their submaps
-(:func:`~vcr_odom.loops.nodes.submap_cloud`).
+polishes from the network's estimate, from the odometry's, and from the odometry's turned either way
+by its heading's uncertainty; the fit that overlaps more wins, among those the odometry's uncertainty
+allows. A narrow field of view that comes back at another heading shares little with its other
+visit's scan, so such nodes register their submaps (:func:`~vcr_odom.loops.nodes.submap_cloud`).
 
 A loop is a measurement: a relative pose with its information (:func:`fit_information`, the same as
 every odometry edge's), rejected by the first of :data:`CHECKS` it fails (docs/usage.md says what
-each catches). ``ambiguous``, two starts that end in two fits where the odometry's fits better or the
-two overlap alike: the network needs no guess; the odometry's start confirms its fit (both end in one)
-or falls short of it (a guess metres off ends in a worse fit). A fit the network's start does not
-reach rests on the odometry's guess alone (a bent submap, a repetitive place), and two fits that
-overlap alike are a place that repeats.
+each catches). ``ambiguous``: a start ends in another fit, and the network's start is the one that
+misses the fit kept or the other fit overlaps alike. The network needs no guess, so a fit its start
+does not reach rests on a guess alone (a bent submap, a repetitive place); two fits that overlap
+alike are a place that repeats; and where a start the odometry's heading allows ends in another fit
+alike, the network's and the odometry's starts agreeing only shared a basin among several.
 """
 
 from __future__ import annotations
@@ -29,6 +29,7 @@ import numpy as np
 import open3d as o3d
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
 
 from vcr_odom.errors import DataWarning
 from vcr_odom.geometry import Transform, make_transform, motion_difference, rotation_angle
@@ -217,22 +218,26 @@ class LoopVerifier:
         network = self.network.register(source_frame, target_frame)
         source_cloud = self._normal_cloud(source_key, nodes)
         scale = distance_scale(source)
-        starts = {"network": network.transform @ turn, "odometry": candidate.prior}
+        placement = None
+        if submaps:
+            placement = self.chain.submap_placement(*source_key) + self.chain.submap_placement(*target_key)
+        starts = {"network": network.transform @ turn, **self._odometry_starts(candidate, placement)}
         fits = {
             name: polish(source_cloud, target_cloud, start, scale, settings) for name, start in starts.items()
         }
         ends = candidate.source, candidate.target
-        placement = None
-        if submaps:
-            placement = self.chain.submap_placement(*source_key) + self.chain.submap_placement(*target_key)
         loops = {
             name: LoopEdge(*ends, fit.transform, fit.information, placement) for name, fit in fits.items()
         }
         chi2 = {name: self.chain.loop_chi2(loop) for name, loop in loops.items()}
         gate = chi2_gate(settings.odometry_confidence, 6)
         best = max(fits, key=lambda name: (chi2[name] <= gate, fits[name].fitness))
-        fit, other = fits[best], fits["odometry" if best == "network" else "network"]
-        apart_m, apart_deg = motion_difference(other.transform, fit.transform)
+        fit, agree_m = fits[best], settings.starts_agree_m * scale
+        apart = {name: motion_difference(other.transform, fit.transform) for name, other in fits.items()}
+        elsewhere = [n for n, (m, deg) in apart.items() if m > agree_m or deg > settings.starts_agree_deg]
+        rivals = elsewhere or [name for name in fits if name != best]
+        rival = "network" if "network" in elsewhere else max(rivals, key=lambda name: fits[name].fitness)
+        other, (apart_m, apart_deg) = fits[rival], apart[rival]
         correction_m, correction_deg = motion_difference(candidate.prior, fit.transform)
         decision.loop = loops[best]
         decision.scores = FitScores(
@@ -251,7 +256,6 @@ class LoopVerifier:
         )
         min_overlap = settings.min_overlap_narrow if narrow else settings.min_overlap
         max_rmse = settings.max_fit_rmse_m * scale
-        one_fit = apart_m <= settings.starts_agree_m * scale and apart_deg <= settings.starts_agree_deg
         if fit.fitness < min_overlap:
             decision.reject("overlap", f"rejected: overlap {fit.fitness:.2f} < {min_overlap}")
         elif fit.rmse > max_rmse:
@@ -268,18 +272,34 @@ class LoopVerifier:
                 f"rejected: degenerate: {fit.weakest_share:.3f} of its surfaces' normals along its weakest "
                 f"direction (< {settings.min_normal_share}): the fit can slide along it",
             )
-        elif not one_fit and (
-            best == "odometry" or fit.fitness - other.fitness < settings.ambiguity_overlap_gap
+        elif rival in elsewhere and (
+            rival == "network" or fit.fitness - other.fitness < settings.ambiguity_overlap_gap
         ):
             decision.reject(
                 "ambiguous",
-                f"rejected: ambiguous: the network's start and the odometry's end {apart_m:.1f} m / "
-                f"{apart_deg:.0f} deg apart; the {best}'s fit kept (overlap {fit.fitness:.2f}, the other "
-                f"{other.fitness:.2f})",
+                f"rejected: ambiguous: the {best}'s start and the {rival}'s end {apart_m:.1f} m / "
+                f"{apart_deg:.0f} deg apart (overlap {fit.fitness:.2f}, the other {other.fitness:.2f})",
             )
         else:
             decision.accepted, decision.reason = True, "accepted"
         return decision
+
+    def _odometry_starts(
+        self, candidate: LoopCandidate, placement: NDArray[np.float64] | None
+    ) -> dict[str, Transform]:
+        """The odometry's start, and it turned ``spread_start_sigmas`` of its heading's uncertainty
+        either way (the rotation about the world's up, which neither gravity nor the ground holds; its
+        covariance between the ends, a submap's placement with it)."""
+        spread = self.chain.world_covariance(candidate.target, candidate.source)
+        variance = spread[2, 2] + (0.0 if placement is None else placement[2, 2])
+        axis = self.chain.poses[candidate.target][2, :3]  # the world's up in the target's frame
+        angle = self.settings.spread_start_sigmas * math.sqrt(max(float(variance), 0.0))
+        starts = {"odometry": candidate.prior}
+        for sign in (-1.0, 1.0):
+            turned = candidate.prior.copy()
+            turned[:3, :3] = Rotation.from_rotvec(sign * angle * axis).as_matrix() @ turned[:3, :3]
+            starts[f"odometry {sign * self.settings.spread_start_sigmas:+g} sigma"] = turned
+        return starts
 
     def _network_points(self, cloud: NDArray[np.float32]) -> tuple[NDArray[np.float32], bool]:
         """The network's input from a node's cloud or submap, and whether pre-processing had to keep
