@@ -16,7 +16,10 @@ Per sequence:
 - **False closures**: accepted loops whose measured transform is more than 1 m / 3 deg off the true
   one (a loop between places truly 15 m apart, measured right, is a true constraint; the JSON gives
   the farthest accepted loop); the JSON lists the right ones' errors too (``right_loop_errors``, each
-  with whether it was a fit of submaps). **max change**: how far the map moved any frame from the
+  with whether it was a fit of submaps), and for each its error's squared Mahalanobis distance under
+  the information the graph gave it (``error_chi2``, loops.json's ``information``): a submap loop
+  claims metres and degrees, so one beyond 1 m / 3 deg can still be right by its own account (below
+  chi-square's 99.9 % on 6 dof, 22.5). **max change**: how far the map moved any frame from the
   odometry (drives without revisits must stay within 1 cm).
 - **Time**: ``run`` (the odometry alone, same method, same process, its folder written) against
   ``map`` (its folder written); **memory**: the nodes' bytes and the process's peak RSS.
@@ -38,7 +41,7 @@ from rich.table import Table
 
 from vcr_odom.data.selection import FrameSelection
 from vcr_odom.evaluation.revisits import true_revisits
-from vcr_odom.geometry import invert, motion_difference
+from vcr_odom.geometry import invert, motion_difference, twist
 from vcr_odom.map_command import MapOutcome, MapSettings, map_sequence
 from vcr_odom.metrics.evo_errors import ate_rpe
 from vcr_odom.odometry.outputs import ground_truth_for
@@ -73,6 +76,17 @@ def loop_error(
     return motion_difference(invert(gt[b]) @ gt[a], np.asarray(loop[transform]))
 
 
+def error_chi2(gt: np.ndarray, frame_position: dict[int, int], loop: dict[str, Any]) -> float | None:
+    """A kept loop's error against the truth as a squared Mahalanobis distance under the information the
+    graph gave it (``information`` of loops.json: on a left perturbation in the target's frame, rotation
+    then translation); None for a loop the graph did not take."""
+    if loop.get("information") is None or loop.get("measured_T_target_source") is None:
+        return None
+    a, b = frame_position[loop["source_frame"]], frame_position[loop["target_frame"]]
+    error = twist(np.asarray(loop["measured_T_target_source"]) @ invert(invert(gt[b]) @ gt[a]))
+    return float(error @ np.asarray(loop["information"]) @ error)
+
+
 def candidates_against_truth(
     gt: np.ndarray, frame_indices: list[int], loops: dict[str, Any]
 ) -> list[dict[str, Any]]:
@@ -90,6 +104,7 @@ def candidates_against_truth(
             row["error_m"], row["error_deg"] = (
                 round(value, 3) for value in loop_error(gt, frame_position, loop, "measured_T_target_source")
             )
+            row["error_chi2"] = error_chi2(gt, frame_position, loop)
         rows.append(row)
     return rows
 
@@ -114,8 +129,16 @@ def score_loops(
         apart = float(np.linalg.norm(gt[a][:3, 3] - gt[b][:3, 3]))
         error_m, error_deg = loop_error(gt, frame_position, loop, "measured_T_target_source")
         farthest = max(farthest, apart)
+        chi2 = error_chi2(gt, frame_position, loop)
         if error_m <= FALSE_M and error_deg <= FALSE_DEG:
-            right.append({"error_m": error_m, "error_deg": error_deg, "submaps": bool(loop.get("submaps"))})
+            right.append(
+                {
+                    "error_m": error_m,
+                    "error_deg": error_deg,
+                    "submaps": bool(loop.get("submaps")),
+                    "error_chi2": chi2,
+                }
+            )
         else:
             false.append(
                 {
@@ -123,6 +146,7 @@ def score_loops(
                     "true_distance_m": round(apart, 2),
                     "error_m": round(error_m, 3),
                     "error_deg": round(error_deg, 3),
+                    "error_chi2": None if chi2 is None else round(chi2, 2),
                     "fitness": loop["fitness"],
                 }
             )

@@ -235,7 +235,7 @@ def replay(args: argparse.Namespace) -> None:
         "loops (false)",
     ):
         table.add_column(header)
-    table.add_column("false loops: frames, m / deg off")
+    table.add_column("false loops: frames, m / deg off (chi2 under its information)")
     if args.truth_loops:
         table.add_column("map ATE, loops measured by the truth [m]")
         table.add_column("odometry error's rotation share")
@@ -245,6 +245,7 @@ def replay(args: argparse.Namespace) -> None:
     for row in rows:
         false = "; ".join(
             f"{a}->{b} {f['error_m']:.2f} / {f['error_deg']:.1f}"
+            + ("" if f.get("error_chi2") is None else f" (chi2 {f['error_chi2']:.1f})")
             for f in row["false_closure_details"]
             for a, b in [f["frames"]]
         )

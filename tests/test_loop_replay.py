@@ -218,3 +218,33 @@ def test_right_loops_errors_are_pooled_over_recordings_own_clouds_and_submaps_ap
     assert pooled["submaps"] == pytest.approx((2, np.sqrt(0.125), np.sqrt(0.5)))
     assert pooled["own clouds"] == pytest.approx((1, 0.1, 0.2))
     assert loop_replay.right_loop_errors(rows[2:]) == {}
+
+
+def test_a_kept_loops_error_is_scored_under_the_information_the_graph_gave_it(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """``error_chi2``: measured = exp(xi) true (xi a left perturbation in the target's frame, rotation
+    then translation, as loops.json's ``information`` reads it) scores xi' I xi; a loop without
+    information (one the graph did not take) scores None."""
+    monkeypatch.syspath_prepend(str(SCRIPT.parent))
+    import loop_closure
+    from scipy.spatial.transform import Rotation
+
+    from vcr_odom.geometry import invert, make_transform
+
+    gt = np.stack(
+        [make_transform(Rotation.from_rotvec([0, 0, 0.1 * k]).as_matrix(), [k, 0.5 * k, 0]) for k in range(8)]
+    )
+    xi = np.array([0.01, -0.02, 0.03, 0.5, -0.2, 0.1])
+    true = invert(gt[2]) @ gt[7]
+    measured = make_transform(Rotation.from_rotvec(xi[:3]).as_matrix(), xi[3:]) @ true
+    information = np.diag([1e4, 2e4, 3e4, 4.0, 5.0, 6.0])
+    loop = {
+        "source_frame": 7,
+        "target_frame": 2,
+        "measured_T_target_source": measured.tolist(),
+        "information": information.tolist(),
+    }
+    position = {k: k for k in range(8)}
+    assert loop_closure.error_chi2(gt, position, loop) == pytest.approx(float(xi @ information @ xi))
+    assert loop_closure.error_chi2(gt, position, {**loop, "information": None}) is None

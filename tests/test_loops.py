@@ -379,6 +379,33 @@ def test_a_fit_the_odometrys_heading_uncertainty_leaves_for_another_alike_is_amb
         assert "odometry -2 sigma" in decision.reason, decision.reason
 
 
+def test_a_kept_loop_records_the_information_the_graph_gave_it(sample_nodes, network, monkeypatch) -> None:
+    """loops.json's ``information`` of a kept loop is exactly what the graph weighed it by (its fit's,
+    in its target's frame): what a user needs to judge its error or to reuse it in another back-end."""
+    from vcr_odom.loops import pipeline
+    from vcr_odom.loops.verify import LoopDecision
+
+    nodes, candidate = drifted_pair(sample_nodes, np.eye(4), 150.0)
+    information = np.diag([4e4, 3e4, 2e4, 900.0, 400.0, 100.0])
+
+    def accepted(self, candidate, nodes):
+        edge = LoopEdge(candidate.source, candidate.target, candidate.prior, information)
+        return LoopDecision(candidate, 1, 0, accepted=True, reason="accepted", loop=edge)
+
+    given = []
+    optimise = pipeline.optimise
+    monkeypatch.setattr(pipeline, "find_candidates", lambda *args: [candidate])
+    monkeypatch.setattr(pipeline.LoopVerifier, "verify", accepted)
+    monkeypatch.setattr(pipeline, "optimise", lambda *a, **k: given.append(a[2]) or optimise(*a, **k))
+    poses = np.stack([node.pose for node in nodes])
+    closed = pipeline.close_loops(LoopSettings(), network, nodes, poses)
+    (decision,) = closed.decisions
+    ((edge,),) = given
+    assert decision.accepted and np.array_equal(np.array(decision.extra["information"]), edge.information)
+    np.testing.assert_allclose(edge.information, information)  # an own-cloud loop: its fit's alone
+    assert json.loads(json.dumps(decision.to_dict()))["information"] == edge.information.tolist()
+
+
 def test_a_node_with_an_empty_scan_is_rejected_not_an_error(sample_nodes, network) -> None:
     nodes, candidate = drifted_pair(sample_nodes, np.eye(4), 60.0)
     empty = [nodes[0], dataclasses.replace(nodes[1], cloud=np.zeros((0, 3), np.float32))]

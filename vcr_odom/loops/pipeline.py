@@ -109,8 +109,11 @@ def close_loops(
     kept_edges = [chain.weighted(edge, selection.odometry_scale) for _, edge in kept]
     up = up_priors(nodes, normals, settings) if kept_edges else None
     after = optimise(node_poses, edge_information, kept_edges, up, selection.odometry_scale)
-    for (decision, _), edge in zip(kept, kept_edges, strict=True):
-        decision.extra["graph_chi2"] = round(residual_chi2(after, edge), 3)
+    for (decision, _), edge in zip(kept, kept_edges, strict=True):  # what the graph took and made of it
+        decision.extra |= {
+            "graph_chi2": round(residual_chi2(after, edge), 3),
+            "information": edge.information.tolist(),
+        }
     if kept_edges:
         poses = correct_frames(odometry_poses, [n.position for n in nodes], node_poses, after)
     else:
