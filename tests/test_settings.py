@@ -52,3 +52,26 @@ def test_with_changes_validates_again() -> None:
     assert Example().with_changes(size=9).size == 9
     with pytest.raises(ConfigError, match="size"):
         Example().with_changes(size=-1)
+
+
+def test_any_settings_model_writes_a_toml_file_it_reads_back(tmp_path) -> None:
+    """The file a user edits: a title line, each field's value (an optional one left out of TOML, which
+    has no null, is not a field the file sets), and an unknown field named with the command that lists
+    the fields."""
+
+    class Titled(Example):
+        toml_title = "example settings"
+        toml_listed_by = "example --dump-config"
+
+    path = tmp_path / "example.toml"
+    text = Titled(size=6, scale=2.0).dump_toml()
+    assert text.startswith("# example settings\n") and "\nsize = 6\n" in text and "\nscale = 2.0\n" in text
+    assert "\n# name is unset" in text
+    path.write_text(text)
+    assert Titled.from_toml(path) == {"size": 6, "scale": 2.0}
+    assert Titled(**Titled.from_toml(path)) == Titled(size=6, scale=2.0)
+    path.write_text("sise = 6\n")
+    with pytest.raises(
+        ConfigError, match=r"example\.toml: unknown setting\(s\) sise; `example --dump-config`"
+    ):
+        Titled.from_toml(path)

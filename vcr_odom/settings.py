@@ -70,7 +70,8 @@ class Settings(BaseModel):
         for name, field in type(self).model_fields.items():
             value = getattr(self, name)
             text = str(value).lower() if isinstance(value, bool) else repr(value)
-            lines += [f"# {field.description}", f"{name} = {text}"]
+            lines += [f"# {field.description}"] if field.description else []
+            lines += [f"# {name} is unset (TOML has no null)" if value is None else f"{name} = {text}"]
         return "\n".join(lines) + "\n"
 
     @classmethod
