@@ -184,10 +184,12 @@ def test_a_collapsed_odometry_does_not_confirm_itself_through_shared_submaps(fol
 
 
 @pytest.mark.filterwarnings("ignore::vcr_odom.errors.DataWarning")
-def test_a_fit_the_networks_start_does_not_reach_is_no_loop(crossing, network, monkeypatch) -> None:
+def test_a_look_alike_the_network_finds_beyond_the_odometry_is_no_loop(
+    crossing, network, monkeypatch
+) -> None:
     """Submaps: the network's start ends on a fit 20 m along the street (a look-alike stretch, beyond the
-    odometry's uncertainty), the odometry's start on one within it. The fit within is the better
-    candidate, but only the odometry's guess reached it: two answers, and the loop is ambiguous."""
+    odometry's uncertainty) that overlaps better than the one the odometry's starts end on within it.
+    The fit within is the candidate the odometry allows, but the place has two answers: ambiguous."""
     nodes, candidate, _ = crossing
     information = np.diag([1e4] * 3 + [400.0] * 3)
     within = verify.Fit(candidate.prior, 0.61, 0.45, information, 0.2)

@@ -104,25 +104,21 @@ class LoopSettings(Settings):
         "direction (the smallest eigenvalue of their mean outer product) can slide along it: degenerate. "
         "The odometry's own threshold for a direction a scan cannot measure.",
     )
-    starts_agree_m: float = Field(
-        default=1.0,
-        gt=0,
-        description="The network's and the odometry's starts must end this close (one fit).",
-    )
+    starts_agree_m: float = Field(default=1.0, gt=0, description="Two starts that end this close: one fit.")
     starts_agree_deg: float = Field(default=5.0, gt=0, description="... and turned this little.")
     spread_start_sigmas: float = Field(
         default=2.0,
         ge=0,
-        description="The odometry's start is also tried turned this many sigmas of its uncertainty either "
-        "way about the world's up (its heading): a fit such a start leaves for another of like overlap "
-        "is one of several the odometry allows.",
+        description="The odometry's start is also tried turned (about the world's up) and moved (along "
+        "its least sure level direction) this many sigmas of its uncertainty either way: a fit such a "
+        "start leaves for another of like overlap is one of several the odometry allows.",
     )
     ambiguity_overlap_gap: float = Field(
         default=0.15,
         ge=0,
         le=1,
-        description="Two starts that end in two fits whose overlaps differ less than this: the place "
-        "repeats and the loop is ambiguous.",
+        description="Two starts (the network's among them) that end in two fits whose overlaps differ "
+        "less than this: the place repeats and the loop is ambiguous.",
     )
     odometry_confidence: float = Field(
         default=0.999,

@@ -3,19 +3,18 @@ and a few physical checks.
 
 The network registers the two nodes' clouds, the later one turned by the odometry's relative rotation
 first (the network is trained on headings within +-30 deg, and the odometry's heading drift between
-two visits is a few degrees, so any revisit heading comes within reach). Point-to-plane ICP then
-polishes from the network's estimate, from the odometry's, and from the odometry's turned either way
-by its heading's uncertainty; the fit that overlaps more wins, among those the odometry's uncertainty
-allows. A narrow field of view that comes back at another heading shares little with its other
-visit's scan, so such nodes register their submaps (:func:`~vcr_odom.loops.nodes.submap_cloud`).
+two visits is a few degrees). Point-to-plane ICP then polishes from the network's estimate, from the
+odometry's, and from the odometry's turned and moved either way by its uncertainty; the fit that
+overlaps most wins, among those the odometry's uncertainty allows. A narrow field of view that comes
+back at another heading shares little with its other visit's scan, so such nodes register their
+submaps (:func:`~vcr_odom.loops.nodes.submap_cloud`).
 
 A loop is a measurement: a relative pose with its information (:func:`fit_information`, the same as
 every odometry edge's), rejected by the first of :data:`CHECKS` it fails (docs/usage.md says what
-each catches). ``ambiguous``: a start ends in another fit, and the network's start is the one that
-misses the fit kept or the other fit overlaps alike. The network needs no guess, so a fit its start
-does not reach rests on a guess alone (a bent submap, a repetitive place); two fits that overlap
-alike are a place that repeats; and where a start the odometry's heading allows ends in another fit
-alike, the network's and the odometry's starts agreeing only shared a basin among several.
+each catches). ``ambiguous``: a start ends in another fit that overlaps alike. A place is recognised
+where every start ends in the fit kept or in clearly worse ones (a network that misses a narrow view,
+a start beyond a wall); two fits alike are a place that repeats within what the odometry knows (a
+bent submap, a yard alike all round, a look-alike stretch).
 """
 
 from __future__ import annotations
@@ -32,7 +31,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from vcr_odom.errors import DataWarning
-from vcr_odom.geometry import Transform, make_transform, motion_difference, rotation_angle
+from vcr_odom.geometry import Transform, adjoint, invert, make_transform, motion_difference, rotation_angle
 from vcr_odom.loops.candidates import Chain, LoopCandidate, LoopEdge, chi2_gate
 from vcr_odom.loops.nodes import (
     CLOUD_VOXEL_M,
@@ -235,8 +234,7 @@ class LoopVerifier:
         fit, agree_m = fits[best], settings.starts_agree_m * scale
         apart = {name: motion_difference(other.transform, fit.transform) for name, other in fits.items()}
         elsewhere = [n for n, (m, deg) in apart.items() if m > agree_m or deg > settings.starts_agree_deg]
-        rivals = elsewhere or [name for name in fits if name != best]
-        rival = "network" if "network" in elsewhere else max(rivals, key=lambda name: fits[name].fitness)
+        rival = max(elsewhere or [n for n in fits if n != best], key=lambda name: fits[name].fitness)
         other, (apart_m, apart_deg) = fits[rival], apart[rival]
         correction_m, correction_deg = motion_difference(candidate.prior, fit.transform)
         decision.loop = loops[best]
@@ -272,9 +270,7 @@ class LoopVerifier:
                 f"rejected: degenerate: {fit.weakest_share:.3f} of its surfaces' normals along its weakest "
                 f"direction (< {settings.min_normal_share}): the fit can slide along it",
             )
-        elif rival in elsewhere and (
-            rival == "network" or fit.fitness - other.fitness < settings.ambiguity_overlap_gap
-        ):
+        elif rival in elsewhere and fit.fitness - other.fitness < settings.ambiguity_overlap_gap:
             decision.reject(
                 "ambiguous",
                 f"rejected: ambiguous: the {best}'s start and the {rival}'s end {apart_m:.1f} m / "
@@ -287,18 +283,26 @@ class LoopVerifier:
     def _odometry_starts(
         self, candidate: LoopCandidate, placement: NDArray[np.float64] | None
     ) -> dict[str, Transform]:
-        """The odometry's start, and it turned ``spread_start_sigmas`` of its heading's uncertainty
-        either way (the rotation about the world's up, which neither gravity nor the ground holds; its
-        covariance between the ends, a submap's placement with it)."""
+        """The odometry's start, and it turned and moved ``spread_start_sigmas`` of its uncertainty
+        either way: about the world's up (the heading, which neither gravity nor the ground holds) and
+        along the level direction the later node's position is least sure of (the odometry's covariance
+        between the two ends, a submap's placement with it)."""
         spread = self.chain.world_covariance(candidate.target, candidate.source)
-        variance = spread[2, 2] + (0.0 if placement is None else placement[2, 2])
-        axis = self.chain.poses[candidate.target][2, :3]  # the world's up in the target's frame
-        angle = self.settings.spread_start_sigmas * math.sqrt(max(float(variance), 0.0))
+        spread = spread if placement is None else spread + placement
+        target, source = self.chain.poses[candidate.target], self.chain.poses[candidate.source]
+        at_source = adjoint(invert(source))  # the source's position in its own axes, then the world's
+        position = source[:3, :3] @ (at_source @ spread @ at_source.T)[3:, 3:] @ source[:3, :3].T
+        variances, directions = np.linalg.eigh(position[:2, :2])  # level: the world's x and y
+        sigmas = self.settings.spread_start_sigmas
+        angle = sigmas * math.sqrt(max(float(spread[2, 2]), 0.0))
+        step = sigmas * math.sqrt(max(float(variances[-1]), 0.0)) * target[:2, :3].T @ directions[:, -1]
         starts = {"odometry": candidate.prior}
         for sign in (-1.0, 1.0):
-            turned = candidate.prior.copy()
-            turned[:3, :3] = Rotation.from_rotvec(sign * angle * axis).as_matrix() @ turned[:3, :3]
-            starts[f"odometry {sign * self.settings.spread_start_sigmas:+g} sigma"] = turned
+            turned, moved = candidate.prior.copy(), candidate.prior.copy()
+            turned[:3, :3] = Rotation.from_rotvec(sign * angle * target[2, :3]).as_matrix() @ turned[:3, :3]
+            moved[:3, 3] += sign * step
+            starts[f"odometry turned {sign * sigmas:+g} sigma"] = turned
+            starts[f"odometry moved {sign * sigmas:+g} sigma"] = moved
         return starts
 
     def _network_points(self, cloud: NDArray[np.float32]) -> tuple[NDArray[np.float32], bool]:
