@@ -66,8 +66,8 @@ from vcr_odom.loops.pipeline import Phases, close_loops, loop_network, loops_jso
 from vcr_odom.loops.settings import LoopSettings
 from vcr_odom.map_command import MapSettings
 from vcr_odom.metrics.evo_errors import ate_rpe
+from vcr_odom.odometry.engine_choice import ENGINE_CHOICES
 from vcr_odom.odometry.frame_loop import run_odometry
-from vcr_odom.odometry.guided_kiss import ENGINES
 from vcr_odom.odometry.outputs import ground_truth_for
 from vcr_odom.odometry.run import method_for
 
@@ -99,7 +99,7 @@ def record(args: argparse.Namespace) -> None:
     )
     sequence = selection.open()
     indices = selection.indices(sequence)
-    odometry = method_for(settings)
+    odometry = method_for(settings, sequence.timestamps[indices])
     recorder = NodeRecorder(settings.node_spacing_m, settings.node_angle_deg)
     run = run_odometry(
         sequence, odometry, indices, on_frame=lambda i, pose, points: recorder(i, pose, points)
@@ -347,7 +347,7 @@ def main() -> None:
     )
     made.add_argument(
         "--polish-engine",
-        choices=list(ENGINES),
+        choices=list(ENGINE_CHOICES),
         default="kiss-icp",
         help="what registers a frame to the polish's map (map's --polish-engine)",
     )

@@ -25,9 +25,9 @@ from doubt_misses import run_one, score  # beside this script
 from vcr_odom.data import open_sequence
 from vcr_odom.data.selection import select_frames
 from vcr_odom.odometry.chain import DoubtRule
-from vcr_odom.odometry.guided_kiss import ENGINES
+from vcr_odom.odometry.engine_choice import AUTO, ENGINE_CHOICES, engine_for
 
-VARIANT_OPTIONS = {"engine": list(ENGINES), "point_to_plane": ["on", "off"]}
+VARIANT_OPTIONS = {"engine": list(ENGINE_CHOICES), "point_to_plane": ["on", "off"]}
 """The polish options a ``--variant`` may set, and the values each takes."""
 
 
@@ -56,8 +56,11 @@ def measure(
     rows: dict[str, dict] = {}
     for _ in range(repeat):
         for engine, options in variants:
+            if options.get("engine") == AUTO:  # the engine the frames' times call for
+                options = {**options, "engine": engine_for(AUTO, sequence.timestamps[indices])}
             result = run_one(sequence, indices, "vcr", "on-doubt", DoubtRule(), options)
             row = rows.setdefault(engine, {"fps": [], **score(result["poses"], gt)})
+            row["chosen"] = options.get("engine", "kiss-icp")
             row["fps"].append(result["fps"])
             row["asked_pct"] = result["asked_pct"]
     base = statistics.median(rows[variants[0][0]]["fps"])
@@ -92,7 +95,9 @@ def markdown(rows: list[dict]) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sequence", type=Path, action="append", required=True, help="a sequence folder")
-    parser.add_argument("--engine", action="append", choices=list(ENGINES), help="default: every engine")
+    parser.add_argument(
+        "--engine", action="append", choices=list(ENGINE_CHOICES), help="default: every engine but auto"
+    )
     parser.add_argument("--variant", action="append", default=[], help="NAME=option:value,...")
     parser.add_argument("--frames", help="A:B, a Python slice of the frames")
     parser.add_argument("--stride", type=int, default=1)
@@ -100,7 +105,8 @@ def main() -> None:
     parser.add_argument("--json", type=Path)
     parser.add_argument("--markdown", action="store_true")
     args = parser.parse_args()
-    variants = [(engine, {"engine": engine}) for engine in args.engine or ENGINES]
+    engines = args.engine or [name for name in ENGINE_CHOICES if name != AUTO]
+    variants = [(engine, {"engine": engine}) for engine in engines]
     variants += map(parse_variant, args.variant)
     rows = []
     for folder in args.sequence:

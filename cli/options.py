@@ -186,15 +186,15 @@ def initial_guess_option(function: F) -> F:
 def kiss_polish_options(function: F) -> F:
     """``--polish-voxel``, ``--point-to-plane`` and ``--polish-engine``: the kiss-icp polish's grid,
     its finish and what registers a frame to its map."""
-    from vcr_odom.odometry.guided_kiss import ENGINES
+    from vcr_odom.odometry.engine_choice import ENGINE_CHOICES
 
     function = click.option(
         "--polish-engine",
-        type=click.Choice(list(ENGINES)),
+        type=click.Choice(list(ENGINE_CHOICES)),
         default="kiss-icp",
         show_default=True,
         help="What registers a frame to the kiss-icp polish's map: "
-        + "; ".join(f"{name}: {text}" for name, text in ENGINES.items()),
+        + "; ".join(f"{name}: {text}" for name, text in ENGINE_CHOICES.items()),
     )(function)
     function = click.option(
         "--point-to-plane",

@@ -99,7 +99,7 @@ def map_sequence(
     check_output_folder(settings.results_dir, "--results-dir")
     sequence = settings.selection.open()
     indices = settings.selection.indices(sequence)
-    odometry = method_for(settings)
+    odometry = method_for(settings, sequence.timestamps[indices])
     # --no-loops maps the odometry alone: no network to load
     network = (
         loop_network(settings.weights, settings.device, settings.vcr_points, odometry)

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
+from numpy.typing import NDArray
 from pydantic import Field
 
 from vcr_odom.data.base import LidarSequence
@@ -29,9 +30,9 @@ from vcr_odom.map_command import map_and_save
 from vcr_odom.metrics import EvaluationReport
 from vcr_odom.model.weights import default_weights_path, read_weights
 from vcr_odom.odometry.chain import Consult, Odometry
+from vcr_odom.odometry.engine_choice import AUTO, EngineChoice, engine_for
 from vcr_odom.odometry.factory import DEFAULT_CONSULT, build_odometry, parse_method_spec
 from vcr_odom.odometry.frame_loop import OdometryRun
-from vcr_odom.odometry.guided_kiss import PolishEngine
 from vcr_odom.odometry.limits import InitialGuess
 from vcr_odom.odometry.outputs import ground_truth_for, run_summary
 from vcr_odom.odometry.run import (
@@ -87,19 +88,23 @@ class CompareSettings(Settings):
     consult: Consult = DEFAULT_CONSULT
     polish_voxel: float | None = Field(default=None, gt=0)
     point_to_plane: Literal["auto", "on", "off"] = "auto"
-    polish_engine: PolishEngine = "kiss-icp"
+    polish_engine: EngineChoice = "kiss-icp"
     results_dir: Path = Path("results")
 
     def method_options(self, spec: str) -> dict[str, Any]:
         method = spec.partition("+")[0].strip().lower()
         return vcr_options(method, self.weights, self.device, self.vcr_passes, self.vcr_points)
 
-    def polish_options(self, spec: str) -> dict[str, object]:
-        """``polish_voxel``, ``point_to_plane`` and ``polish_engine`` for a row with the kiss-icp polish;
-        none for the others (the kiss-icp baseline, kiss-slam and the other polishes keep their own)."""
+    def polish_options(self, spec: str, timestamps: NDArray[np.float64] | None = None) -> dict[str, object]:
+        """``polish_voxel``, ``point_to_plane`` and ``polish_engine`` for a row with the kiss-icp polish
+        (``auto`` chosen by the frames' ``timestamps``); none for the others (the kiss-icp baseline,
+        kiss-slam and the other polishes keep their own)."""
         if parse_method_spec(spec)[1] != "kiss-icp":
             return {}
-        return kiss_polish_options(self.polish_voxel, self.point_to_plane, self.polish_engine)
+        engine = self.polish_engine
+        if engine == AUTO:
+            engine = engine_for(AUTO, timestamps) if timestamps is not None else "kiss-icp"
+        return kiss_polish_options(self.polish_voxel, self.point_to_plane, engine)
 
 
 @dataclass
@@ -166,7 +171,7 @@ def run_comparison(settings: CompareSettings, progress: ProgressFactory | None =
     kinds = pair_kinds_to_run(settings, sequence) if settings.protocol != "odometry" else ()
     odometries: dict[str, Method] = {}
     if settings.protocol in ("odometry", "both"):
-        odometries = {spec: _build(spec, settings) for spec in specs}
+        odometries = {spec: _build(spec, settings, sequence.timestamps[indices]) for spec in specs}
         missing = [method.error for method in odometries.values() if isinstance(method, Unavailable)]
         if missing and len(missing) == len(odometries):
             raise ConfigError(f"nothing to compare: {missing[0]}")
@@ -217,7 +222,7 @@ def run_comparison(settings: CompareSettings, progress: ProgressFactory | None =
     return comparison
 
 
-def _build(spec: str, settings: CompareSettings) -> Method:
+def _build(spec: str, settings: CompareSettings, timestamps: NDArray[np.float64]) -> Method:
     """The odometry called ``spec`` (with the loop network for a ``+loops`` row), or
     :class:`Unavailable` where it is an optional method that is not installed (its row says so; the
     other methods still run)."""
@@ -227,7 +232,7 @@ def _build(spec: str, settings: CompareSettings) -> Method:
             base,
             initial_guess=settings.initial_guess,
             consult=settings.consult,
-            polish_options=settings.polish_options(base),
+            polish_options=settings.polish_options(base, timestamps),
             **settings.method_options(base),
         )
     except MissingExtraError as error:
@@ -240,9 +245,8 @@ def _build(spec: str, settings: CompareSettings) -> Method:
 def _check_polish_options(settings: CompareSettings, specs: list[str]) -> None:
     """The kiss-icp polish's options with no row that has that polish would be ignored: a ConfigError
     (the CLI's usage error) naming them instead, before any folder is made."""
-    given = polish_flags(
-        kiss_polish_options(settings.polish_voxel, settings.point_to_plane, settings.polish_engine)
-    )
+    engine = "kiss-icp" if settings.polish_engine == AUTO else settings.polish_engine  # auto: a default
+    given = polish_flags(kiss_polish_options(settings.polish_voxel, settings.point_to_plane, engine))
     if given and not any(settings.polish_options(split_loops(spec)[0]) for spec in specs):
         raise ConfigError(
             f"{', '.join(given)} {'applies' if len(given) == 1 else 'apply'} to the kiss-icp polish, "

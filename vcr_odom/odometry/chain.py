@@ -291,7 +291,12 @@ class Odometry:
             voxel = getattr(self.polish, "voxel_size", None)  # kiss-icp's map grid, chosen by now
             if voxel is not None:
                 plane = bool(getattr(self.polish, "point_to_plane", False))
-                self.last_info = {"polish_voxel_m": voxel, "polish_point_to_plane": plane}
+                engine = getattr(self.polish, "engine", None)
+                self.last_info = {
+                    "polish_voxel_m": voxel,
+                    "polish_point_to_plane": plane,
+                    "polish_engine": engine,
+                }
         return Step(self._pose.copy(), dict(self.last_info))
 
     def _finish(

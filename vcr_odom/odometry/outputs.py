@@ -162,6 +162,7 @@ def run_summary(run: OdometryRun) -> dict[str, Any]:
         "polish_point_to_plane": (
             run.per_frame_info[0].get("polish_point_to_plane") if run.per_frame_info else None
         ),
+        "polish_engine": run.per_frame_info[0].get("polish_engine") if run.per_frame_info else None,
         "global_registration": global_consultations(run),
         "wall_seconds": run.wall_seconds,
         "frames_per_second": run.frames_per_second,

@@ -14,6 +14,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
+import numpy as np
+from numpy.typing import NDArray
 from pydantic import Field
 
 from vcr_odom.data.base import LidarSequence, Points
@@ -23,9 +25,9 @@ from vcr_odom.geometry import Transform
 from vcr_odom.mapping import VoxelMap, check_map_outside_scans, check_map_path
 from vcr_odom.metrics import EvaluationReport, evaluate
 from vcr_odom.odometry.chain import Consult, Odometry
+from vcr_odom.odometry.engine_choice import AUTO, EngineChoice, engine_for
 from vcr_odom.odometry.factory import DEFAULT_CONSULT, build_odometry, canonical_spec, parse_method_spec
 from vcr_odom.odometry.frame_loop import OdometryRun, run_odometry
-from vcr_odom.odometry.guided_kiss import PolishEngine
 from vcr_odom.odometry.limits import InitialGuess
 from vcr_odom.odometry.outputs import Checkpoints, ground_truth_for, run_summary, save_trajectory
 from vcr_odom.plots import plot_trajectories
@@ -67,7 +69,7 @@ class RunSettings(Settings):
     consult: Consult = DEFAULT_CONSULT
     polish_voxel: float | None = Field(default=None, gt=0)
     point_to_plane: Literal["auto", "on", "off"] = "auto"
-    polish_engine: PolishEngine = "kiss-icp"
+    polish_engine: EngineChoice = "kiss-icp"
     save_map: Path | None = None
     map_voxel: float = Field(default=0.5, ge=0.05)
     results_dir: Path = Path("results")
@@ -127,11 +129,16 @@ def polish_flags(options: dict[str, object]) -> list[str]:
     return [flag for key, flag in POLISH_FLAGS.items() if key in options]
 
 
-def polish_options(settings: RunSettings) -> dict[str, object]:
-    """The polish's constructor options (:func:`kiss_polish_options`); a ConfigError naming the
-    options where the odometry has no kiss-icp polish, rather than ignoring them."""
-    options = kiss_polish_options(settings.polish_voxel, settings.point_to_plane, settings.polish_engine)
-    if options and parse_method_spec(settings.spec)[1] != "kiss-icp":
+def polish_options(settings: RunSettings, timestamps: NDArray[np.float64] | None = None) -> dict[str, object]:
+    """The polish's constructor options (:func:`kiss_polish_options`; ``--polish-engine auto`` chosen
+    by the run's frame ``timestamps``); a ConfigError naming the options where the odometry has no
+    kiss-icp polish, rather than ignoring them."""
+    polished = parse_method_spec(settings.spec)[1] == "kiss-icp"
+    engine = settings.polish_engine
+    if engine == AUTO:  # like the default where there is no kiss-icp polish to choose for
+        engine = engine_for(AUTO, timestamps) if polished else "kiss-icp"
+    options = kiss_polish_options(settings.polish_voxel, settings.point_to_plane, engine)
+    if options and not polished:
         flags = polish_flags(options)
         raise ConfigError(
             f"{', '.join(flags)} {'applies' if len(flags) == 1 else 'apply'} to the kiss-icp polish, and "
@@ -140,12 +147,15 @@ def polish_options(settings: RunSettings) -> dict[str, object]:
     return options
 
 
-def method_for(settings: RunSettings) -> Odometry | SequentialOdometry:
-    """The odometry ``settings`` ask for (its weights loaded: a bad file fails here, before any folder)."""
+def method_for(
+    settings: RunSettings, timestamps: NDArray[np.float64] | None = None
+) -> Odometry | SequentialOdometry:
+    """The odometry ``settings`` ask for (its weights loaded: a bad file fails here, before any folder);
+    ``timestamps``: the run's frames', which ``--polish-engine auto`` needs."""
     return build_odometry(
         settings.spec,
         initial_guess=settings.initial_guess,
-        polish_options=polish_options(settings),
+        polish_options=polish_options(settings, timestamps),
         consult=settings.consult,
         **vcr_options(
             settings.method,
@@ -169,7 +179,7 @@ def run_sequence(
         check_map_outside_scans(settings.save_map, sequence)
     indices = settings.selection.indices(sequence)
     spec = settings.spec
-    odometry = method_for(settings)
+    odometry = method_for(settings, sequence.timestamps[indices])
     folder = create_result_folder(
         settings.results_dir,
         f"run_{sequence.label}_{spec}",
