@@ -30,7 +30,7 @@ from vcr_odom.map_command import map_and_save
 from vcr_odom.metrics import EvaluationReport
 from vcr_odom.model.weights import default_weights_path, read_weights
 from vcr_odom.odometry.chain import Consult, Odometry
-from vcr_odom.odometry.engine_choice import AUTO, EngineChoice, engine_for
+from vcr_odom.odometry.engine_choice import EngineChoice, engine_for
 from vcr_odom.odometry.factory import DEFAULT_CONSULT, build_odometry, parse_method_spec
 from vcr_odom.odometry.frame_loop import OdometryRun
 from vcr_odom.odometry.limits import InitialGuess
@@ -101,9 +101,7 @@ class CompareSettings(Settings):
         kiss-slam and the other polishes keep their own)."""
         if parse_method_spec(spec)[1] != "kiss-icp":
             return {}
-        engine = self.polish_engine
-        if engine == AUTO:
-            engine = engine_for(AUTO, timestamps) if timestamps is not None else "kiss-icp"
+        engine = engine_for(self.polish_engine, timestamps)
         return kiss_polish_options(self.polish_voxel, self.point_to_plane, engine)
 
 
@@ -245,9 +243,11 @@ def _build(spec: str, settings: CompareSettings, timestamps: NDArray[np.float64]
 def _check_polish_options(settings: CompareSettings, specs: list[str]) -> None:
     """The kiss-icp polish's options with no row that has that polish would be ignored: a ConfigError
     (the CLI's usage error) naming them instead, before any folder is made."""
-    engine = "kiss-icp" if settings.polish_engine == AUTO else settings.polish_engine  # auto: a default
-    given = polish_flags(kiss_polish_options(settings.polish_voxel, settings.point_to_plane, engine))
-    if given and not any(settings.polish_options(split_loops(spec)[0]) for spec in specs):
+    given = polish_flags(
+        kiss_polish_options(settings.polish_voxel, settings.point_to_plane, settings.polish_engine)
+    )
+    polished = [parse_method_spec(split_loops(spec)[0])[1] == "kiss-icp" for spec in specs]
+    if given and not any(polished):
         raise ConfigError(
             f"{', '.join(given)} {'applies' if len(given) == 1 else 'apply'} to the kiss-icp polish, "
             f"and none of {', '.join(specs)} has it (the default of vcr and fpfh, or +kiss-icp)"

@@ -105,9 +105,10 @@ def kiss_polish_options(
 ) -> dict[str, object]:
     """The kiss-icp polish's constructor options for ``--polish-voxel``, ``--point-to-plane`` and
     ``--polish-engine`` (``auto``, no voxel and kiss-icp's engine give none: the polish decides on the
-    first frame)."""
+    first frame; ``--polish-engine auto`` is chosen by :func:`engine_for` where the run's times are
+    known, so here it is a default)."""
     options: dict[str, object] = {}
-    if engine != "kiss-icp":
+    if engine not in ("kiss-icp", AUTO):
         options["engine"] = engine
     if polish_voxel is not None:
         options["voxel_size"] = polish_voxel
@@ -130,21 +131,19 @@ def polish_flags(options: dict[str, object]) -> list[str]:
 
 
 def polish_options(settings: RunSettings, timestamps: NDArray[np.float64] | None = None) -> dict[str, object]:
-    """The polish's constructor options (:func:`kiss_polish_options`; ``--polish-engine auto`` chosen
-    by the run's frame ``timestamps``); a ConfigError naming the options where the odometry has no
-    kiss-icp polish, rather than ignoring them."""
-    polished = parse_method_spec(settings.spec)[1] == "kiss-icp"
-    engine = settings.polish_engine
-    if engine == AUTO:  # like the default where there is no kiss-icp polish to choose for
-        engine = engine_for(AUTO, timestamps) if polished else "kiss-icp"
-    options = kiss_polish_options(settings.polish_voxel, settings.point_to_plane, engine)
-    if options and not polished:
-        flags = polish_flags(options)
+    """The polish's constructor options (:func:`kiss_polish_options`, the engine chosen by
+    :func:`engine_for` from the run's frame ``timestamps``); a ConfigError naming the options where the
+    odometry has no kiss-icp polish, rather than ignoring them."""
+    voxel, plane = settings.polish_voxel, settings.point_to_plane
+    if parse_method_spec(settings.spec)[1] == "kiss-icp":
+        return kiss_polish_options(voxel, plane, engine_for(settings.polish_engine, timestamps))
+    flags = polish_flags(kiss_polish_options(voxel, plane, settings.polish_engine))
+    if flags:
         raise ConfigError(
             f"{', '.join(flags)} {'applies' if len(flags) == 1 else 'apply'} to the kiss-icp polish, and "
             f"{settings.spec} has none (the kiss-icp polish is the default of vcr and fpfh, or +kiss-icp)"
         )
-    return options
+    return {}
 
 
 def method_for(
